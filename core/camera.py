@@ -1,0 +1,254 @@
+"""Pinhole camera with OpenCV lens distortion, with near-plane and fold-back guards.
+
+Pixel convention (DESIGN section 3): pixel ``(u, v)`` has its centre at integer coordinates;
+images are indexed ``[v, u]``. The camera frame has OpenCV axes (x right, y down, z forward).
+
+Two guards make projection safe for labels:
+
+* points with ``z <= near_m`` are never projected (no mirrored objects from behind the camera);
+* the radial distortion polynomial folds back beyond some radius (its derivative turns negative),
+  where far-off-axis points would land *inside* the image; points whose normalised radius is
+  beyond :attr:`CameraModel.r_max` are rejected.
+"""
+from __future__ import annotations
+
+import json
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+#: DAVIS346c calibration hard-coded in the E-POSE annotation scripts (OpenCV model, k1 k2 p1 p2 k3);
+#: the same values as ``shared/assets/epose/camera_davis346.json``.
+DAVIS346_WIDTH = 346
+DAVIS346_HEIGHT = 260
+DAVIS346_K = ((292.52, 0.0, 172.61), (0.0, 293.19, 130.125), (0.0, 0.0, 1.0))
+DAVIS346_DIST = (-0.362, 0.115, 0.0009576, 4.55e-06, 0.13)
+
+_VALID_DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+class CameraError(ValueError):
+    """Invalid camera parameters; the message names the source and the field."""
+
+
+class CameraModel:
+    """Intrinsics ``K``, OpenCV distortion ``dist`` and sensor size.
+
+    Parameters
+    ----------
+    K : (3, 3) array
+        Camera matrix in pixels.
+    dist : sequence of 0, 4, 5, 8, 12 or 14 floats
+        OpenCV distortion coefficients (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]).
+        An empty sequence means no distortion; it is never silently forced to zero.
+    width, height : int
+        Sensor size in pixels.
+    near_m : float
+        Near plane in metres; points with ``z <= near_m`` are not projected. Default 1 mm, so
+        objects close to the lens do not vanish.
+    source : str
+        Name used in error messages.
+    """
+
+    def __init__(self, K, dist=(), width: int = DAVIS346_WIDTH, height: int = DAVIS346_HEIGHT,
+                 *, near_m: float = 1e-3, source: str = "camera"):
+        self.source = source
+        try:
+            K = np.asarray(K, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise CameraError(f"{source}: K: not a numeric 3x3 matrix") from None
+        if K.shape != (3, 3):
+            raise CameraError(f"{source}: K: expected a 3x3 matrix, got shape {K.shape}")
+        if not np.all(np.isfinite(K)):
+            raise CameraError(f"{source}: K: contains NaN or inf")
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise CameraError(f"{source}: K: focal lengths must be positive (fx={K[0, 0]}, fy={K[1, 1]})")
+        if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise CameraError(f"{source}: K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+        try:
+            dist = np.asarray(dist, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise CameraError(f"{source}: dist: not a list of numbers") from None
+        if len(dist) not in _VALID_DIST_LENGTHS:
+            raise CameraError(f"{source}: dist: OpenCV takes 0, 4, 5, 8, 12 or 14 coefficients, got {len(dist)}")
+        if not np.all(np.isfinite(dist)):
+            raise CameraError(f"{source}: dist: contains NaN or inf")
+        if int(width) != width or int(height) != height or width <= 0 or height <= 0:
+            raise CameraError(f"{source}: width/height: must be positive integers, got {width}x{height}")
+        if not near_m > 0:
+            raise CameraError(f"{source}: near_m: must be positive, got {near_m}")
+        self.K = K
+        self.dist = dist
+        self.width = int(width)
+        self.height = int(height)
+        self.near_m = float(near_m)
+        self._maps: dict = {}
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def davis346(cls, **kwargs) -> "CameraModel":
+        """The DAVIS346c calibration used by E-POSE."""
+        return cls(DAVIS346_K, DAVIS346_DIST, DAVIS346_WIDTH, DAVIS346_HEIGHT, source="DAVIS346 default", **kwargs)
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "camera") -> "CameraModel":
+        """From a mapping with ``K``, ``dist`` (optional), ``width``, ``height``."""
+        for key in ("K", "width", "height"):
+            if key not in d:
+                raise CameraError(f"{source}: {key}: missing")
+        return cls(d["K"], d.get("dist", []), d["width"], d["height"], source=source)
+
+    @classmethod
+    def from_json(cls, path) -> "CameraModel":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise CameraError(f"{path}: cannot read camera JSON ({exc})") from None
+        return cls.from_dict(data, source=str(path))
+
+    def to_dict(self) -> dict:
+        return {"width": self.width, "height": self.height, "K": self.K.tolist(), "dist": self.dist.tolist()}
+
+    def __repr__(self) -> str:
+        return (f"CameraModel({self.width}x{self.height}, fx={self.K[0, 0]:.2f}, fy={self.K[1, 1]:.2f}, "
+                f"cx={self.K[0, 2]:.2f}, cy={self.K[1, 2]:.2f}, dist={self.dist.tolist()})")
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.dist != 0))
+
+    # ------------------------------------------------------------------ distortion radius
+    @cached_property
+    def r_max(self) -> float:
+        """Largest normalised radius up to which radial distortion is monotonic (``inf`` if always).
+
+        The radial factor is ``(1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)``;
+        ``r_d = r * factor`` must increase with ``r``. The search covers r up to 20 (87 degrees
+        off-axis); tangential and prism terms are small and not part of the bound.
+        """
+        if not self.has_distortion:
+            return float("inf")
+        k = np.zeros(8)
+        k[: min(8, len(self.dist))] = self.dist[:8]
+        k1, k2, p1, p2, k3, k4, k5, k6 = k
+        r = np.linspace(0.0, 20.0, 200_001)
+        r2 = r * r
+        num = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+        den = 1 + k4 * r2 + k5 * r2**2 + k6 * r2**3
+        bad_den = den <= 1e-9
+        rd = r * num / np.where(bad_den, 1.0, den)
+        bad = bad_den[1:] | (np.diff(rd) <= 0)
+        if not bad.any():
+            return float("inf")
+        return float(r[int(np.argmax(bad))])
+
+    # ------------------------------------------------------------------ projection
+    def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project camera-frame points (metres) to distorted pixel coordinates.
+
+        Returns
+        -------
+        uv : (N, 2) float64
+            Pixel coordinates; NaN where not valid.
+        valid : (N,) bool
+            ``z > near_m`` and normalised radius within :attr:`r_max`. Points outside the image
+            but valid keep their coordinates (use :meth:`in_image`).
+        """
+        P = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+        uv = np.full((len(P), 2), np.nan)
+        valid = P[:, 2] > self.near_m
+        if valid.any():
+            xy = P[valid, :2] / P[valid, 2:3]
+            ok = np.einsum("ij,ij->i", xy, xy) <= self.r_max**2
+            idx = np.flatnonzero(valid)
+            valid[idx[~ok]] = False
+            if ok.any():
+                uv[idx[ok]] = self.distort_normalized(xy[ok])
+        return uv, valid
+
+    def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
+        """Normalised image coordinates ``(x/z, y/z)`` to distorted pixels via ``cv2.projectPoints``.
+
+        No guard is applied: callers pass points inside :attr:`r_max`.
+        """
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if len(xy) == 0:
+            return np.zeros((0, 2))
+        pts = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+        uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.dist)
+        return uv.reshape(-1, 2)
+
+    def undistort_points(self, uv: np.ndarray, K_new: np.ndarray | None = None) -> np.ndarray:
+        """Distorted pixels to normalised coordinates (or pixels of ``K_new`` if given).
+
+        Uses ``cv2.undistortPoints`` with iteration criteria (accurate to ~1e-12 px rather than
+        the 5 fixed iterations of the default, which leave errors of several thousandths of a pixel
+        with DAVIS346 distortion).
+        """
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+        if len(uv) == 0:
+            return np.zeros((0, 2))
+        P = None if K_new is None else np.asarray(K_new, dtype=np.float64)
+        try:
+            out = cv2.undistortPoints(uv, self.K, self.dist, R=None, P=P, criteria=_UNDISTORT_CRITERIA)
+        except (TypeError, cv2.error):  # OpenCV 4.x spells the iterative variant differently
+            out = cv2.undistortPointsIter(uv, self.K, self.dist, None, P, _UNDISTORT_CRITERIA)
+        return out.reshape(-1, 2)
+
+    def in_image(self, uv: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """True where pixel coordinates fall on the sensor (pixel squares ``[-0.5, W-0.5)``)."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        with np.errstate(invalid="ignore"):
+            return ((uv[:, 0] >= -0.5 - margin_px) & (uv[:, 0] < self.width - 0.5 + margin_px)
+                    & (uv[:, 1] >= -0.5 - margin_px) & (uv[:, 1] < self.height - 0.5 + margin_px))
+
+    # ------------------------------------------------------------------ per-pixel rays and maps
+    @cached_property
+    def _pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
+        vv, uu = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+        uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
+        xy = self.undistort_points(uv)
+        back = self.distort_normalized(xy)
+        ok = (np.abs(back - uv).max(axis=1) < 1e-4) & (np.einsum("ij,ij->i", xy, xy) <= self.r_max**2)
+        xy[~ok] = np.nan
+        xy = xy.reshape(self.height, self.width, 2)
+        xy.setflags(write=False)
+        ok = ok.reshape(self.height, self.width)
+        ok.setflags(write=False)
+        return xy, ok
+
+    def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised ray ``(x, y)`` (ray direction ``(x, y, 1)``) through every pixel centre.
+
+        Computed once per camera. Returns ``(xy (H, W, 2) float64, valid (H, W) bool)``; a
+        pixel is invalid when undistortion does not converge or lands beyond :attr:`r_max`.
+        The arrays are read-only.
+        """
+        return self._pixel_rays
+
+    def undistortion_maps(self, K_new: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``cv2.remap`` maps from the undistorted image (intrinsics ``K_new``, default ``K``) to
+        this camera's distorted image; cached per ``K_new``."""
+        K_new = self.K if K_new is None else np.asarray(K_new, dtype=np.float64)
+        key = K_new.tobytes()
+        if key not in self._maps:
+            self._maps[key] = cv2.initUndistortRectifyMap(
+                self.K, self.dist, None, K_new, (self.width, self.height), cv2.CV_32FC1)
+        return self._maps[key]
+
+    def undistort_image(self, image: np.ndarray, K_new: np.ndarray | None = None,
+                        interpolation: int = cv2.INTER_NEAREST) -> np.ndarray:
+        """Resample a distorted image (events, masks) into the undistorted camera ``K_new``."""
+        if not self.has_distortion and (K_new is None or np.array_equal(K_new, self.K)):
+            return image.copy()
+        map1, map2 = self.undistortion_maps(K_new)
+        return cv2.remap(image, map1, map2, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    def undistorted(self, K_new: np.ndarray | None = None) -> "CameraModel":
+        """The ideal pinhole camera the undistorted images belong to."""
+        return CameraModel(self.K if K_new is None else K_new, (), self.width, self.height,
+                           near_m=self.near_m, source=f"{self.source} (undistorted)")

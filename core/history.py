@@ -1,0 +1,274 @@
+"""Undo/redo of edits to a :class:`~core.corrections.Corrections` document (pure Python).
+
+Every edit is a :class:`Command` carrying its old and new values. :class:`History` runs
+commands, merges repeated nudges of the same field into one step (as ``QUndoStack`` does with
+``mergeWith``), groups several commands into one step, and tracks a clean index (the state
+last saved). GUI frontends mirror it onto their Undo/Redo actions; they never mutate the
+document directly.
+"""
+from __future__ import annotations
+
+import contextlib
+import time
+from typing import Callable
+
+import numpy as np
+
+from .corrections import Corrections
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return np.array_equal(np.asarray(a), np.asarray(b))
+    return a == b
+
+
+class Command:
+    """One undoable edit. Subclasses implement :meth:`redo` and :meth:`undo`."""
+
+    text = "edit"
+    #: Commands with equal, non-None keys may merge into one undo step.
+    merge_key = None
+
+    def redo(self, doc: Corrections) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def undo(self, doc: Corrections) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def merge(self, other: "Command") -> bool:
+        """Absorb ``other`` (pushed right after self); return True if merged."""
+        return False
+
+    def is_noop(self) -> bool:
+        return False
+
+
+class SetValue(Command):
+    """Set the document value at ``key`` (see :meth:`Corrections.get`) from ``old`` to ``new``.
+
+    ``mergeable`` commands with the same key merge: the result keeps the first ``old`` and the
+    last ``new``, so a burst of keyboard nudges or a slider drag is one undo step.
+    """
+
+    def __init__(self, key: tuple, old, new, text: str | None = None, mergeable: bool = False):
+        self.key = tuple(key)
+        self.old = old
+        self.new = new
+        self.text = text or f"set {'/'.join(str(k) for k in self.key)}"
+        self.merge_key = self.key if mergeable else None
+
+    def redo(self, doc: Corrections) -> None:
+        doc.set(self.key, self.new)
+
+    def undo(self, doc: Corrections) -> None:
+        doc.set(self.key, self.old)
+
+    def merge(self, other: Command) -> bool:
+        if not isinstance(other, SetValue) or other.merge_key is None or other.merge_key != self.merge_key:
+            return False
+        self.new = other.new
+        return True
+
+    def is_noop(self) -> bool:
+        return _same(self.old, self.new)
+
+
+class Group(Command):
+    """Several commands as one undo step (redo in order, undo in reverse)."""
+
+    def __init__(self, text: str, commands: list[Command] | None = None):
+        self.text = text
+        self.commands: list[Command] = list(commands or [])
+
+    def redo(self, doc: Corrections) -> None:
+        for c in self.commands:
+            c.redo(doc)
+
+    def undo(self, doc: Corrections) -> None:
+        for c in reversed(self.commands):
+            c.undo(doc)
+
+    def is_noop(self) -> bool:
+        return all(c.is_noop() for c in self.commands)
+
+
+def set_command(doc: Corrections, key: tuple, new, text: str | None = None, mergeable: bool = False) -> SetValue:
+    """A :class:`SetValue` whose ``old`` is the document's current value at ``key``."""
+    return SetValue(key, doc.get(key), new, text=text, mergeable=mergeable)
+
+
+class History:
+    """Linear undo history over one document.
+
+    Parameters
+    ----------
+    doc : Corrections
+    limit : int
+        Maximum number of undo steps kept (oldest dropped first).
+    merge_timeout_s : float
+        Mergeable commands merge only if pushed within this time of the previous one (a pause
+        starts a new undo step). :meth:`break_merge` ends a merge sequence explicitly.
+    clock : callable
+        Time source (seconds); injectable for tests.
+    """
+
+    def __init__(self, doc: Corrections, limit: int = 1000, merge_timeout_s: float = 1.5,
+                 clock: Callable[[], float] = time.monotonic):
+        self.doc = doc
+        self.limit = limit
+        self.merge_timeout_s = merge_timeout_s
+        self._clock = clock
+        self._stack: list[Command] = []
+        self._index = 0  # number of commands applied
+        self._clean: int | None = 0
+        self._last_push_t = -float("inf")
+        self._merge_open = False
+        self._group: Group | None = None
+        self._group_depth = 0
+        self._listeners: list[Callable[["History"], None]] = []
+
+    # ------------------------------------------------------------------ observation
+    def subscribe(self, callback: Callable[["History"], None]) -> Callable[[], None]:
+        """Call ``callback(history)`` after push/undo/redo/clean changes."""
+        self._listeners.append(callback)
+        return lambda: self._listeners.remove(callback) if callback in self._listeners else None
+
+    def _notify(self) -> None:
+        for cb in list(self._listeners):
+            cb(self)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def index(self) -> int:
+        return self._index
+
+    def __len__(self) -> int:
+        return len(self._stack)
+
+    @property
+    def can_undo(self) -> bool:
+        return self._index > 0 and self._group is None
+
+    @property
+    def can_redo(self) -> bool:
+        return self._index < len(self._stack) and self._group is None
+
+    @property
+    def undo_text(self) -> str:
+        return self._stack[self._index - 1].text if self._index > 0 else ""
+
+    @property
+    def redo_text(self) -> str:
+        return self._stack[self._index].text if self._index < len(self._stack) else ""
+
+    @property
+    def is_clean(self) -> bool:
+        return self._clean == self._index
+
+    def set_clean(self) -> None:
+        """Mark the current state as saved."""
+        self._clean = self._index
+        self._merge_open = False
+        self._notify()
+
+    def break_merge(self) -> None:
+        """The next mergeable command starts a new undo step."""
+        self._merge_open = False
+
+    # ------------------------------------------------------------------ editing
+    def push(self, cmd: Command) -> None:
+        """Run ``cmd`` and record it (merging into the previous step when allowed)."""
+        cmd.redo(self.doc)
+        if self._group is not None:
+            self._group.commands.append(cmd)
+            return
+        self._record(cmd)
+
+    def _record(self, cmd: Command) -> None:
+        now = self._clock()
+        top = self._stack[self._index - 1] if self._index > 0 else None
+        can_merge = (top is not None and self._merge_open and self._index == len(self._stack)
+                     and self._clean != self._index and cmd.merge_key is not None
+                     and now - self._last_push_t <= self.merge_timeout_s)
+        self._last_push_t = now
+        if can_merge and top.merge(cmd):
+            if top.is_noop():  # the burst went back to where it started
+                self._stack.pop()
+                self._index -= 1
+                self._merge_open = False
+            self._notify()
+            return
+        if cmd.is_noop():  # nothing changed: no undo step
+            return
+        del self._stack[self._index:]
+        if self._clean is not None and self._clean > self._index:
+            self._clean = None  # the saved state can no longer be reached
+        self._stack.append(cmd)
+        self._index += 1
+        self._merge_open = cmd.merge_key is not None
+        if len(self._stack) > self.limit:
+            drop = len(self._stack) - self.limit
+            del self._stack[:drop]
+            self._index -= drop
+            if self._clean is not None:
+                self._clean = self._clean - drop if self._clean >= drop else None
+        self._notify()
+
+    def set(self, key: tuple, new, text: str | None = None, mergeable: bool = False) -> None:
+        """Shorthand: push a :class:`SetValue` from the current value to ``new`` (no-op if equal)."""
+        self.push(set_command(self.doc, key, new, text=text, mergeable=mergeable))
+
+    @contextlib.contextmanager
+    def group(self, text: str):
+        """Collect every command pushed inside the block into one undo step.
+
+        If the block raises, the commands already run are undone and nothing is recorded.
+        Nested groups fold into the outermost one.
+        """
+        outer = self._group is None
+        if outer:
+            self._group = Group(text)
+        self._group_depth += 1
+        try:
+            yield
+        except BaseException:
+            if outer:
+                grp, self._group = self._group, None
+                grp.undo(self.doc)
+                self._group_depth = 0
+            else:
+                self._group_depth -= 1
+            raise
+        self._group_depth -= 1
+        if outer:
+            grp, self._group = self._group, None
+            if grp.commands:
+                self._merge_open = False
+                self._record(grp)  # a net no-op group records nothing
+
+    def undo(self) -> bool:
+        if not self.can_undo:
+            return False
+        self._index -= 1
+        self._stack[self._index].undo(self.doc)
+        self._merge_open = False
+        self._notify()
+        return True
+
+    def redo(self) -> bool:
+        if not self.can_redo:
+            return False
+        self._stack[self._index].redo(self.doc)
+        self._index += 1
+        self._merge_open = False
+        self._notify()
+        return True
+
+    def clear(self) -> None:
+        """Forget all steps (the document keeps its current state, which becomes clean)."""
+        self._stack.clear()
+        self._index = 0
+        self._clean = 0
+        self._merge_open = False
+        self._notify()
