@@ -113,12 +113,13 @@ class Request:
     masks_visible: bool = True
     masks_full: bool = False
     label_map: bool = False
+    depth: bool = False
     segment_events: bool = False
     margin_m: float = 0.0
 
     @property
     def needs_raster(self) -> bool:
-        return self.masks_visible or self.masks_full or self.label_map or self.segment_events
+        return self.masks_visible or self.masks_full or self.label_map or self.depth or self.segment_events
 
 
 @dataclass
@@ -154,6 +155,7 @@ class WindowLabels:
     T_base_cam: np.ndarray | None = None
     objects: list[ObjectLabel] = field(default_factory=list)
     label_map: np.ndarray | None = None  # (H, W) int16: object index, -1 background
+    depth_m: np.ndarray | None = None    # (H, W) float32: camera-frame z of the nearest object, inf elsewhere
 
     def object(self, name: str) -> ObjectLabel:
         for o in self.objects:
@@ -266,8 +268,12 @@ class Annotator:
             covered = obj >= 0
             label_map[covered] = lut[obj[covered]]
             counts = np.bincount(label_map[covered].ravel().astype(np.int64), minlength=len(self.names))
+            if req.depth:
+                labels.depth_m = res.depth_m
         else:
             counts = np.zeros(len(self.names), np.int64)
+            if req.depth:
+                labels.depth_m = np.full((H, W), np.inf, np.float32)
         for k, lab in enumerate(labels.objects):
             if not lab.in_view:
                 continue

@@ -361,6 +361,15 @@ class Scene:
     def models(self) -> list[ObjectModel]:
         return [self.model(n) for n in self.object_names]
 
+    def with_corrections(self, corrections: Corrections) -> "Scene":
+        """A scene with other corrections that shares this one's loaded events, trajectory and
+        meshes (for snapshots handed to worker threads and for previews)."""
+        other = Scene(self.manifest, corrections)
+        for key in ("events", "trajectory", "_models"):
+            if key in self.__dict__:
+                other.__dict__[key] = self.__dict__[key]
+        return other
+
     def close(self) -> None:
         if "events" in self.__dict__:
             self.events.close()

@@ -1,0 +1,365 @@
+"""The main window: frame view in the centre, space-time view, timeline and correction tools in
+docks; menus and shortcuts from :mod:`app.actions`; frames computed off the GUI thread."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from core.session import REPRESENTATION_NAMES, FrameComputer, FrameData, Session, SpaceTimeData
+from widgets.correction_panel import CorrectionPanel
+from widgets.frame_view import FrameView
+from widgets.help_overlay import HelpOverlay
+from widgets.object_list import ObjectList
+from widgets.review_panel import ReviewPanel
+
+from . import actions as A
+from .controller import Controller
+from .settings import Settings
+from .undo_bridge import UndoBridge
+from .workers import LatestWorker
+
+AUTOSAVE_MS = 20_000
+SPACETIME_DEBOUNCE_MS = 120
+OVERLAY_ACTIONS = {"toggle_mask": "mask", "toggle_contour": "contour", "toggle_box": "box", "toggle_axes": "axes"}
+REPRESENTATION_LABELS = {"polarity": "Polarity (ON red / OFF blue)", "spike": "Spike (any event)",
+                         "three_channel": "E-POSE 3-channel", "time_surface": "Time surface",
+                         "counts": "Event counts", "voxel": "Voxel grid (signed sum)"}
+
+
+class MainWindow(QtWidgets.QMainWindow):
+    """One window per session. ``set_session`` (via the controller's ``open_scene``) builds the views."""
+
+    #: False in tests and screenshot runs: dialogs do not block (answers from ``auto_answer``).
+    modal_dialogs = True
+
+    def __init__(self, settings: Settings | None = None):
+        super().__init__()
+        self.settings = settings or Settings()
+        self.session: Session | None = None
+        self.controller = Controller(self)
+        self.auto_answer: dict = {}
+        self.last_error: str | None = None
+        self.last_export = None
+        self.frame: FrameData | None = None
+        self._shown_serial = {"frame": 0, "spacetime": 0}
+        self._views: list[QtWidgets.QWidget] = []
+        self._docks: list[QtWidgets.QDockWidget] = []
+        self._unsubscribe = None
+        self.undo_bridge: UndoBridge | None = None
+        self.setWindowTitle("evpose[*]")
+        self.resize(1500, 950)
+        self.setAcceptDrops(True)
+        self.setDockNestingEnabled(True)
+
+        self.frame_worker = LatestWorker(FrameComputer().frame, "frame-worker")
+        self.frame_worker.done.connect(self._frame_ready)
+        self.frame_worker.failed.connect(self._worker_failed)
+        self.spacetime_worker = LatestWorker(FrameComputer().spacetime, "spacetime-worker")
+        self.spacetime_worker.done.connect(self._spacetime_ready)
+        self.spacetime_worker.failed.connect(self._worker_failed)
+        self._spacetime_timer = QtCore.QTimer(self, singleShot=True, interval=SPACETIME_DEBOUNCE_MS)
+        self._spacetime_timer.timeout.connect(self.request_spacetime)
+        self._autosave = QtCore.QTimer(self, interval=AUTOSAVE_MS)
+        self._autosave.timeout.connect(lambda: self.session and self.session.write_journal())
+        self._autosave.start()
+
+        self.welcome = QtWidgets.QLabel("<h2>evpose</h2><p>Open a scene folder (Ctrl+O), pick a recent scene "
+                                        "from the File menu, or drop a scene folder or scene.toml here.</p>")
+        self.welcome.setAlignment(QtCore.Qt.AlignCenter)
+        self.setCentralWidget(self.welcome)
+        self._build_actions()
+        self._build_menus()
+        self.help = HelpOverlay(self)
+        self.help.set_shortcuts(A.help_sections())
+        self.statusBar().showMessage("ready")
+        self.settings.restore_window(self)
+
+    # ------------------------------------------------------------------ actions and menus
+    def _build_actions(self) -> None:
+        self.actions_by_name: dict[str, QtGui.QAction] = {}
+        for sc in A.SHORTCUTS:
+            act = QtGui.QAction(sc.text, self)
+            act.setShortcuts([QtGui.QKeySequence(k) for k in sc.keys])
+            act.setShortcutContext(QtCore.Qt.WindowShortcut)
+            act.setToolTip(f"{sc.text} ({' / '.join(sc.keys)})")
+            self.addAction(act)
+            self.actions_by_name[sc.name] = act
+        a = self.actions_by_name
+        a["undo"].setText("&Undo")
+        a["redo"].setText("&Redo")
+        a["open"].setText("&Open scene…")
+        a["save"].setText("&Save corrections")
+        a["export"].setText("&Export dataset…")
+        a["screenshot"].setText("Save s&creenshot…")
+        a["quit"].setText("&Quit")
+        a["help"].setText("&Keyboard shortcuts")
+        a["open"].triggered.connect(self.controller.open_dialog)
+        a["save"].triggered.connect(self.controller.save)
+        a["export"].triggered.connect(self.controller.export_dialog)
+        a["screenshot"].triggered.connect(self._screenshot_dialog)
+        a["quit"].triggered.connect(self.close)
+        a["help"].triggered.connect(lambda: self.help.toggle())
+        for name, n in (("step_back", -1), ("step_forward", 1), ("step_back_10", -10), ("step_forward_10", 10)):
+            a[name].triggered.connect(lambda _=False, n=n: self.session and self.session.step_windows(n))
+        a["go_start"].triggered.connect(lambda: self.session and self.session.set_time(self.session.time_range[0]))
+        a["go_end"].triggered.connect(lambda: self.session and self.session.set_time(self.session.time_range[1]))
+        a["play"].triggered.connect(lambda: self.timeline is not None and self.timeline.toggle_play())
+        for name, sign, big in (("offset_minus", -1, False), ("offset_plus", 1, False),
+                                ("offset_minus_10", -1, True), ("offset_plus_10", 1, True)):
+            a[name].triggered.connect(lambda _=False, s=sign, b=big: self.panel and self.panel.nudge_offset(s, b))
+        for name, (kind, axis, sign) in A.NUDGES.items():
+            act = a[name]
+            act.setShortcuts(act.shortcuts() + [QtGui.QKeySequence(f"Shift+{act.shortcut().toString()}")])
+            act.triggered.connect(lambda _=False, k=kind, ax=axis, sg=sign, act=act: self._nudge(k, ax, sg))
+        a["next_object"].triggered.connect(self._next_object)
+        for name in ("verified", "rejected", "flagged"):
+            a[f"mark_{name}"].triggered.connect(lambda _=False, s=name: self.reviews and self.reviews.mark(s))
+        a["next_unreviewed"].triggered.connect(lambda: self.reviews and self.reviews.goto_next(lambda s: s is None))
+        a["next_flagged"].triggered.connect(lambda: self.reviews and self.reviews.goto_next(lambda s: s == "flagged"))
+        for name, kind in OVERLAY_ACTIONS.items():
+            a[name].setCheckable(True)
+            a[name].toggled.connect(lambda on, k=kind: self.session and self.session.set_overlay(k, on))
+        a["reset_zoom"].triggered.connect(lambda: self.frame_view and self.frame_view.reset_zoom())
+        self.representation_group = QtGui.QActionGroup(self)
+        self.representation_actions = {}
+        for name in REPRESENTATION_NAMES:
+            act = QtGui.QAction(REPRESENTATION_LABELS[name], self, checkable=True)
+            act.triggered.connect(lambda _=False, n=name: self.session and self.session.set_representation(n))
+            self.representation_group.addAction(act)
+            self.representation_actions[name] = act
+        self._set_document_actions_enabled(False)
+
+    def _build_menus(self) -> None:
+        a = self.actions_by_name
+        m = self.menuBar().addMenu("&File")
+        m.addAction(a["open"])
+        self.recent_menu = m.addMenu("Open &recent")
+        self.refresh_recent_menu()
+        m.addAction(a["save"])
+        m.addSeparator()
+        m.addAction(a["export"])
+        m.addAction(a["screenshot"])
+        m.addSeparator()
+        m.addAction(a["quit"])
+        m = self.menuBar().addMenu("&Edit")
+        m.addAction(a["undo"])
+        m.addAction(a["redo"])
+        m = self.menuBar().addMenu("&View")
+        rep = m.addMenu("Event &representation")
+        for act in self.representation_actions.values():
+            rep.addAction(act)
+        for name in OVERLAY_ACTIONS:
+            m.addAction(a[name])
+        m.addAction(a["reset_zoom"])
+        self.docks_menu = m.addMenu("&Panels")
+        m = self.menuBar().addMenu("&Navigate")
+        for name in ("step_back", "step_forward", "step_back_10", "step_forward_10", "go_start", "go_end", "play",
+                     "next_unreviewed", "next_flagged"):
+            m.addAction(a[name])
+        m = self.menuBar().addMenu("&Review")
+        for name in ("mark_verified", "mark_rejected", "mark_flagged"):
+            m.addAction(a[name])
+        m = self.menuBar().addMenu("&Help")
+        m.addAction(a["help"])
+
+    def refresh_recent_menu(self) -> None:
+        self.recent_menu.clear()
+        recent = self.settings.recent_scenes()
+        for p in recent:
+            act = self.recent_menu.addAction(p)
+            act.triggered.connect(lambda _=False, p=p: self.controller.open_scene(p))
+        self.recent_menu.setEnabled(bool(recent))
+
+    def _set_document_actions_enabled(self, on: bool) -> None:
+        for name, act in self.actions_by_name.items():
+            if name not in ("open", "quit", "help"):
+                act.setEnabled(on)
+        for act in self.representation_actions.values():
+            act.setEnabled(on)
+
+    # ------------------------------------------------------------------ session
+    frame_view: FrameView | None = None
+    panel: CorrectionPanel | None = None
+    reviews: ReviewPanel | None = None
+    timeline = None
+    spacetime = None
+    objects: ObjectList | None = None
+
+    def set_session(self, session: Session) -> None:
+        """Show ``session`` (replacing any open one)."""
+        self._teardown_session()
+        self.session = session
+        from widgets.spacetime_view import SpaceTimeView
+        from widgets.timeline import Timeline
+
+        self.frame_view = FrameView(session)
+        self.frame_view.hoverText.connect(lambda t: t and self.statusBar().showMessage(t, 2000))
+        self.setCentralWidget(self.frame_view)
+        self.panel = CorrectionPanel(session)
+        self.objects = ObjectList(session)
+        self.reviews = ReviewPanel(session)
+        self.timeline = Timeline(session)
+        self.spacetime = SpaceTimeView(session)
+        self.panel.autoSyncRequested.connect(self._auto_sync)
+        self.panel.refineRequested.connect(self._refine)
+        right = QtWidgets.QWidget()
+        rl = QtWidgets.QVBoxLayout(right)
+        rl.setContentsMargins(0, 0, 0, 0)
+        rl.addWidget(self.objects, 1)
+        rl.addWidget(self.panel, 0)
+        self._add_dock("Objects and corrections", right, QtCore.Qt.RightDockWidgetArea, "dock_corrections")
+        self._add_dock("Review", self.reviews, QtCore.Qt.RightDockWidgetArea, "dock_review")
+        self._add_dock("Space-time (x, y, t)", self.spacetime, QtCore.Qt.LeftDockWidgetArea, "dock_spacetime")
+        self._add_dock("Timeline", self.timeline, QtCore.Qt.BottomDockWidgetArea, "dock_timeline")
+        self.resizeDocks([self._docks[2]], [520], QtCore.Qt.Horizontal)
+        self.resizeDocks([self._docks[0]], [380], QtCore.Qt.Horizontal)
+        self.resizeDocks([self._docks[3]], [230], QtCore.Qt.Vertical)
+        self.settings.restore_window(self)
+        self.undo_bridge = UndoBridge(session.history, self.actions_by_name["undo"], self.actions_by_name["redo"], self)
+        self._unsubscribe = session.subscribe(self._on_session)
+        self._set_document_actions_enabled(True)
+        self._sync_view_actions()
+        self.setWindowTitle(f"evpose — {session.scene.name}[*]")
+        self.undo_bridge.sync()
+        self.request_frame()
+        self.request_spacetime()
+
+    def _add_dock(self, title: str, widget: QtWidgets.QWidget, area, name: str) -> None:
+        dock = QtWidgets.QDockWidget(title, self)
+        dock.setObjectName(name)
+        dock.setWidget(widget)
+        self.addDockWidget(area, dock)
+        self.docks_menu.addAction(dock.toggleViewAction())
+        self._docks.append(dock)
+
+    def _teardown_session(self) -> None:
+        if self.session is None:
+            return
+        self.settings.save_window(self)
+        if self._unsubscribe:
+            self._unsubscribe()
+        if self.undo_bridge:
+            self.undo_bridge.detach()
+        for dock in self._docks:
+            self.docks_menu.removeAction(dock.toggleViewAction())
+            self.removeDockWidget(dock)
+            dock.deleteLater()
+        self._docks.clear()
+        if self.timeline is not None and hasattr(self.timeline, "stop"):
+            self.timeline.stop()
+        self.session.close()
+        self.session = None
+        self.setCentralWidget(QtWidgets.QLabel())
+
+    def _sync_view_actions(self) -> None:
+        v = self.session.view
+        for name, kind in OVERLAY_ACTIONS.items():
+            act = self.actions_by_name[name]
+            act.blockSignals(True)
+            act.setChecked(kind in v.overlays)
+            act.blockSignals(False)
+        self.representation_actions[v.representation].setChecked(True)
+
+    def _on_session(self, what: str) -> None:
+        if what in ("time", "view", "document", "objects", "history"):
+            self.request_frame()
+            self._spacetime_timer.start()
+        if what == "view":
+            self._sync_view_actions()
+
+    # ------------------------------------------------------------------ frames
+    def request_frame(self) -> None:
+        if self.session is not None:
+            self.frame_worker.submit(self.session.request())
+
+    def request_spacetime(self) -> None:
+        dock = self._docks[2] if len(self._docks) > 2 else None
+        if self.session is not None and dock is not None and not dock.isHidden():
+            self.spacetime_worker.submit(self.session.request())
+
+    def _frame_ready(self, data: FrameData, serial: int) -> None:
+        if self.frame_view is None or serial < self._shown_serial["frame"]:
+            return  # stale
+        self._shown_serial["frame"] = serial
+        self.frame = data
+        self.frame_view.set_frame(data)
+
+    def _spacetime_ready(self, data: SpaceTimeData, serial: int) -> None:
+        if self.spacetime is None or serial < self._shown_serial["spacetime"]:
+            return
+        self._shown_serial["spacetime"] = serial
+        self.spacetime.set_data(data)
+
+    def _worker_failed(self, message: str, serial: int) -> None:
+        self.statusBar().showMessage("could not compute the view: " + message.strip().splitlines()[-1], 10_000)
+        self.last_error = message
+
+    # ------------------------------------------------------------------ editing helpers
+    def _nudge(self, kind: str, axis: int, sign: int) -> None:
+        if self.panel is None:
+            return
+        mods = QtWidgets.QApplication.keyboardModifiers()
+        self.panel.nudge_object(kind, axis, sign, big=bool(mods & QtCore.Qt.ShiftModifier))
+
+    def _next_object(self) -> None:
+        s = self.session
+        if s is None or not s.object_names:
+            return
+        names = s.object_names
+        i = names.index(s.view.selected) + 1 if s.view.selected in names else 0
+        s.select(names[i % len(names)])
+
+    def _auto_sync(self) -> None:
+        self.statusBar().showMessage("automatic sync is not available in this build", 5000)
+
+    def _refine(self, name: str) -> None:
+        self.statusBar().showMessage("refinement is not available in this build", 5000)
+
+    # ------------------------------------------------------------------ screenshots
+    def save_screenshot(self, path) -> Path:
+        """Render the whole window (GL views included) to a PNG."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        QtWidgets.QApplication.processEvents()
+        img = self.grab().toImage()
+        if not img.save(str(path)):
+            raise OSError(f"{path}: could not write the screenshot")
+        return path
+
+    def _screenshot_dialog(self) -> None:
+        name = f"evpose_{self.session.scene.name if self.session else 'window'}.png"
+        path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save screenshot", name, "PNG images (*.png)")
+        if path:
+            self.statusBar().showMessage(f"saved {self.save_screenshot(path)}", 5000)
+
+    # ------------------------------------------------------------------ drag and drop, close
+    @staticmethod
+    def _scene_path_from_mime(mime: QtCore.QMimeData) -> str | None:
+        for url in mime.urls():
+            p = Path(url.toLocalFile())
+            if p.name == "scene.toml" or (p / "scene.toml").is_file():
+                return str(p)
+        return None
+
+    def dragEnterEvent(self, event: QtGui.QDragEnterEvent) -> None:
+        if self._scene_path_from_mime(event.mimeData()):
+            event.acceptProposedAction()
+
+    def dropEvent(self, event: QtGui.QDropEvent) -> None:
+        path = self._scene_path_from_mime(event.mimeData())
+        if path:
+            event.acceptProposedAction()
+            self.controller.open_scene(path)
+
+    def closeEvent(self, event: QtGui.QCloseEvent) -> None:
+        if not self.controller.maybe_save():
+            event.ignore()
+            return
+        for job in list(self.controller.jobs):
+            job.cancel()
+        self._teardown_session()
+        self.settings.save_window(self)
+        self.frame_worker.stop()
+        self.spacetime_worker.stop()
+        event.accept()

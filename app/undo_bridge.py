@@ -1,0 +1,34 @@
+"""Mirror the core :class:`~core.history.History` onto Qt actions and the window-modified flag."""
+from __future__ import annotations
+
+from PySide6 import QtGui, QtWidgets
+
+from core.history import History
+
+
+class UndoBridge:
+    """Keeps Undo/Redo actions (enabled state and text) and ``windowModified`` in sync."""
+
+    def __init__(self, history: History, undo: QtGui.QAction, redo: QtGui.QAction, window: QtWidgets.QWidget):
+        self.history = history
+        self.undo_action, self.redo_action, self.window = undo, redo, window
+        undo.triggered.connect(history.undo)
+        redo.triggered.connect(history.redo)
+        self._unsubscribe = history.subscribe(lambda h: self.sync())
+        self.sync()
+
+    def sync(self) -> None:
+        h = self.history
+        self.undo_action.setEnabled(h.can_undo)
+        self.redo_action.setEnabled(h.can_redo)
+        self.undo_action.setText(f"&Undo {h.undo_text}" if h.can_undo else "&Undo")
+        self.redo_action.setText(f"&Redo {h.redo_text}" if h.can_redo else "&Redo")
+        self.window.setWindowModified(not h.is_clean)
+
+    def detach(self) -> None:
+        self._unsubscribe()
+        for a in (self.undo_action, self.redo_action):
+            try:
+                a.triggered.disconnect()
+            except (RuntimeError, TypeError):
+                pass

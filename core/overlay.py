@@ -1,0 +1,98 @@
+"""Display-ready overlay geometry for one window: contours, box wireframes, axes, centres,
+and a composited RGBA mask image. Pixel coordinates are OpenCV's (pixel centres at integers)
+in the raw, distorted event image; 3D edges are sampled before projection so they bend with the
+lens like the events do.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .camera import CameraModel
+from .geometry import apply_T
+from .objects import BBOX_EDGES
+
+#: Qualitative colours (RGB) assigned to objects by their index in the scene.
+PALETTE = ((230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
+           (240, 50, 230), (210, 245, 60), (250, 190, 212), (0, 128, 128), (170, 110, 40), (128, 0, 0))
+AXIS_COLORS = ((230, 40, 40), (40, 200, 40), (40, 90, 240))  # x red, y green, z blue
+
+
+def object_color(index: int) -> tuple[int, int, int]:
+    return PALETTE[index % len(PALETTE)]
+
+
+@dataclass
+class ObjectOverlay:
+    """Overlay primitives of one object (pixels of the raw event image)."""
+
+    name: str
+    color: tuple[int, int, int]
+    contours: list[np.ndarray] = field(default_factory=list)  # closed polylines (N, 2)
+    box_segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))  # (M, 2 points, uv)
+    axes: list[np.ndarray] = field(default_factory=list)  # 3 polylines (x, y, z), NaN-free segments
+    center_uv: np.ndarray | None = None
+
+
+def mask_contours(mask: np.ndarray, min_points: int = 3) -> list[np.ndarray]:
+    """Outer and inner boundaries of a mask as closed polylines of pixel centres (float64)."""
+    if mask is None or not mask.any():
+        return []
+    cs, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
+    out = []
+    for c in cs:
+        c = c.reshape(-1, 2).astype(np.float64)
+        if len(c) >= min_points:
+            out.append(np.vstack([c, c[:1]]))
+    return out
+
+
+def projected_segments(camera: CameraModel, pts_cam: np.ndarray, pairs) -> np.ndarray:
+    """Project 3D polylines given as consecutive point pairs; drop pairs with an unprojectable end."""
+    uv, ok = camera.project(pts_cam)
+    pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    keep = ok[pairs[:, 0]] & ok[pairs[:, 1]]
+    return uv[pairs[keep]]
+
+
+def _sampled_edges(a: np.ndarray, b: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points along segments a->b (E, 3) with n sub-segments each, and the index pairs."""
+    s = np.linspace(0.0, 1.0, n + 1)
+    pts = a[:, None, :] + s[None, :, None] * (b - a)[:, None, :]  # (E, n+1, 3)
+    E = len(a)
+    base = (np.arange(E) * (n + 1))[:, None]
+    pairs = np.stack([base + np.arange(n), base + np.arange(1, n + 1)], axis=-1).reshape(-1, 2)
+    return pts.reshape(-1, 3), pairs
+
+
+def box_segments(camera: CameraModel, corners_cam: np.ndarray, samples_per_edge: int = 12) -> np.ndarray:
+    """Wireframe of the 3D box (8 camera-frame corners) as projected 2D segments ``(M, 2, 2)``."""
+    e = np.asarray(BBOX_EDGES)
+    pts, pairs = _sampled_edges(corners_cam[e[:, 0]], corners_cam[e[:, 1]], samples_per_edge)
+    return projected_segments(camera, pts, pairs)
+
+
+def axes_segments(camera: CameraModel, T_cam_obj: np.ndarray, length_m: float, origin_obj=(0, 0, 0),
+                  samples: int = 8) -> list[np.ndarray]:
+    """The object's x, y, z axes (from ``origin_obj``, ``length_m`` long) as projected segments."""
+    o = np.asarray(origin_obj, dtype=np.float64)
+    out = []
+    for k in range(3):
+        tip = o.copy()
+        tip[k] += length_m
+        pts, pairs = _sampled_edges(apply_T(T_cam_obj, o[None]), apply_T(T_cam_obj, tip[None]), samples)
+        out.append(projected_segments(camera, pts, pairs))
+    return out
+
+
+def compose_masks_rgba(label_map: np.ndarray, colors: list[tuple[int, int, int]], alpha: float = 0.35,
+                       visible: list[bool] | None = None) -> np.ndarray:
+    """One RGBA image (H, W, 4) uint8 of all object masks in their colours (transparent elsewhere)."""
+    H, W = label_map.shape
+    lut = np.zeros((len(colors) + 1, 4), np.uint8)  # index 0 = background (label -1)
+    for k, c in enumerate(colors):
+        if visible is None or visible[k]:
+            lut[k + 1] = (*c, int(round(255 * alpha)))
+    return lut[label_map.astype(np.intp) + 1]

@@ -1,0 +1,433 @@
+"""The model the desktop app views: a scene, its corrections, the undo history and view state.
+
+Pure Python (no Qt): views subscribe with :meth:`Session.subscribe` and get told *what*
+changed (``"time"``, ``"view"``, ``"objects"``, ``"document"``, ``"history"``, ``"reviews"``).
+Document edits (clock, poses, hand-eye, reviews) go through :class:`~core.history.History`;
+view state (current time, window length, representation, overlays, visibility, selection) is
+neither saved nor undoable (DESIGN section 2).
+
+Frame computation is a pure function of a :class:`FrameRequest` snapshot, so the app can run it
+in a worker thread while the user keeps editing; the snapshot carries a copy of the corrections.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import represent
+from .annotate import Annotator, Request, Window, WindowLabels, label_time
+from .corrections import Corrections, CorrectionsError, ReviewMark
+from .events import EventArray
+from .history import History
+from .overlay import (ObjectOverlay, axes_segments, box_segments, compose_masks_rgba, mask_contours,
+                      object_color)
+from .pose_edit import hand_eye_step, nudge_step
+from .scene import Scene
+
+OVERLAY_KINDS = ("mask", "contour", "box", "axes", "center")
+REPRESENTATION_NAMES = ("polarity", "spike", "three_channel", "time_surface", "counts", "voxel")
+JOURNAL_NAME = ".corrections.autosave.json"
+
+
+@dataclass(frozen=True)
+class ViewState:
+    """What the user looks at (not part of the document)."""
+
+    t_us: int
+    window_us: int = 10_000
+    representation: str = "polarity"
+    overlays: tuple = ("mask", "contour", "box", "center")
+    hidden: frozenset = frozenset()
+    selected: str | None = None
+    mask_alpha: float = 0.35
+    spacetime_span_us: int = 100_000
+    spacetime_budget: int = 300_000
+    spacetime_slices: int = 12
+
+    def window(self, index: int = -1) -> Window:
+        t0 = int(self.t_us - self.window_us // 2)
+        return Window(index, t0, t0 + int(self.window_us), label_time(t0, t0 + int(self.window_us)))
+
+
+@dataclass
+class FrameData:
+    """Everything the frame view draws for one window."""
+
+    window: Window
+    n_events: int
+    image_rgb: np.ndarray                # (H, W, 3) uint8
+    counts: np.ndarray                   # (H, W) int64: events per pixel (hover readout)
+    labels: WindowLabels
+    mask_rgba: np.ndarray | None         # (H, W, 4) uint8 composite of visible masks
+    overlays: list[ObjectOverlay] = field(default_factory=list)
+    inside_fraction: float | None = None  # share of the window's events on the (dilated) masks
+    compute_ms: float = 0.0
+
+
+@dataclass
+class SpaceTimeData:
+    """Events around the current time as an (x, y, t) cloud, and the objects' silhouette tubes."""
+
+    t_center_us: int
+    points: np.ndarray        # (N, 3) float32: x px, y px, t ms relative to t_center
+    polarity: np.ndarray      # (N,) uint8
+    n_total: int              # events in the span before decimation
+    tubes: list[tuple[str, tuple[int, int, int], list[np.ndarray]]]  # (name, colour, polylines (M, 3))
+    span_us: int = 0
+
+
+@dataclass(frozen=True)
+class FrameRequest:
+    scene: Scene       # a snapshot: shares data, owns a copy of the corrections
+    view: ViewState
+    serial: int = 0
+
+
+class Session:
+    """Scene + history + view state, with change notification."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.history = History(scene.corrections)
+        t0, t1 = self.time_range
+        self.view = ViewState(t_us=min(t0 + ViewState.window_us // 2, t1))
+        self._listeners: list[Callable[[str], None]] = []
+        self._serial = 0
+        scene.corrections.subscribe(self._doc_changed)
+        self.history.subscribe(lambda h: self._emit("history"))
+
+    @classmethod
+    def open(cls, path) -> "Session":
+        return cls(Scene.open(path))
+
+    def close(self) -> None:
+        self.scene.close()
+
+    # ------------------------------------------------------------------ observation
+    def subscribe(self, callback: Callable[[str], None]) -> Callable[[], None]:
+        self._listeners.append(callback)
+        return lambda: self._listeners.remove(callback) if callback in self._listeners else None
+
+    def _emit(self, what: str) -> None:
+        for cb in list(self._listeners):
+            cb(what)
+
+    def _doc_changed(self, what: str) -> None:
+        self._emit("reviews" if what == "reviews" else "document")
+
+    # ------------------------------------------------------------------ scene facts
+    @property
+    def time_range(self) -> tuple[int, int]:
+        """``[t_first_us, t_last_us]`` of the events (event clock)."""
+        ev = self.scene.events
+        if ev.t_first_us is None:
+            return 0, 0
+        return int(ev.t_first_us), int(ev.t_last_us)
+
+    @property
+    def object_names(self) -> list[str]:
+        return self.scene.object_names
+
+    def color(self, name: str) -> tuple[int, int, int]:
+        return object_color(self.object_names.index(name))
+
+    @property
+    def dirty(self) -> bool:
+        return not self.history.is_clean
+
+    # ------------------------------------------------------------------ view state
+    def _set_view(self, what: str = "view", **changes) -> None:
+        new = replace(self.view, **changes)
+        if new != self.view:
+            self.view = new
+            self._emit(what)
+
+    def set_time(self, t_us: int) -> None:
+        t0, t1 = self.time_range
+        self._set_view("time", t_us=int(min(max(int(t_us), t0), t1)))
+
+    def step_windows(self, n: int) -> None:
+        self.set_time(self.view.t_us + n * self.view.window_us)
+
+    def set_window_us(self, window_us: int) -> None:
+        if window_us <= 0:
+            raise ValueError("window length must be positive")
+        self._set_view(window_us=int(window_us))
+
+    def set_representation(self, name: str) -> None:
+        if name not in represent.REPRESENTATIONS:
+            raise ValueError(f"unknown representation {name!r}; choose from {sorted(represent.REPRESENTATIONS)}")
+        self._set_view(representation=name)
+
+    def set_overlay(self, kind: str, on: bool) -> None:
+        if kind not in OVERLAY_KINDS:
+            raise ValueError(f"unknown overlay {kind!r}")
+        cur = [k for k in self.view.overlays if k != kind]
+        self._set_view(overlays=tuple(k for k in OVERLAY_KINDS if k in cur or (k == kind and on)))
+
+    def set_object_visible(self, name: str, visible: bool) -> None:
+        hidden = set(self.view.hidden)
+        hidden.discard(name) if visible else hidden.add(name)
+        self._set_view("objects", hidden=frozenset(hidden))
+
+    def select(self, name: str | None) -> None:
+        if name is not None and name not in self.object_names:
+            raise KeyError(name)
+        self._set_view("objects", selected=name)
+
+    def set_view_option(self, **changes) -> None:
+        self._set_view(**changes)
+
+    # ------------------------------------------------------------------ document edits
+    def set_offset_correction_us(self, offset_us: int, mergeable: bool = True) -> None:
+        """Clock offset correction on top of the scene's prior (microseconds)."""
+        self.history.set(("offset_us",), int(offset_us), text="change time offset", mergeable=mergeable)
+
+    def set_skew_correction_ppm(self, skew_ppm: float, mergeable: bool = True) -> None:
+        self.history.set(("skew_ppm",), float(skew_ppm), text="change clock skew", mergeable=mergeable)
+
+    def current_T_base_cam(self) -> np.ndarray:
+        T, valid = self.scene.T_base_cam(np.array([self.view.t_us]))
+        return T[0]
+
+    def nudge_object(self, name: str, frame: str, rot_deg=(0, 0, 0), trans_mm=(0, 0, 0), mergeable: bool = True) -> None:
+        """Rotate (degrees) / translate (mm) an object in ``frame`` axes about its box centre."""
+        model = self.scene.model(name)
+        step = nudge_step(frame, rot_deg, trans_mm, self.scene.T_base_obj(name), self.current_T_base_cam(),
+                          pivot_obj_m=model.bbox_center_m)
+        new = step @ self.scene.corrections.object_delta(name)
+        self.history.set(("object", name), new, text=f"move {name}", mergeable=mergeable)
+
+    def nudge_hand_eye(self, rot_deg=(0, 0, 0), trans_mm=(0, 0, 0), mergeable: bool = True) -> None:
+        new = self.scene.corrections.hand_eye_delta @ hand_eye_step(rot_deg, trans_mm)
+        self.history.set(("hand_eye",), new, text="change hand-eye", mergeable=mergeable)
+
+    def reset(self, field_name: str) -> None:
+        """Reset one field: ``"offset_us"``, ``"skew_ppm"``, ``"hand_eye"`` or an object name."""
+        if field_name == "offset_us":
+            self.history.set(("offset_us",), 0, text="reset time offset")
+        elif field_name == "skew_ppm":
+            self.history.set(("skew_ppm",), 0.0, text="reset clock skew")
+        elif field_name == "hand_eye":
+            self.history.set(("hand_eye",), np.eye(4), text="reset hand-eye")
+        elif field_name in self.object_names:
+            self.history.set(("object", field_name), np.eye(4), text=f"reset {field_name}")
+        else:
+            raise KeyError(field_name)
+
+    def add_review(self, status: str, t0_us: int | None = None, t1_us: int | None = None, note: str = "",
+                   obj: str | None = None) -> ReviewMark:
+        """Mark ``[t0, t1)`` (default: the current window) verified / rejected / flagged."""
+        w = self.view.window()
+        mark = ReviewMark(w.t0_us if t0_us is None else t0_us, w.t1_us if t1_us is None else t1_us, status, note, obj)
+        self.history.set(("reviews",), self.scene.corrections.reviews + [mark], text=f"mark {status}")
+        return mark
+
+    def remove_review(self, mark: ReviewMark) -> None:
+        self.history.set(("reviews",), [m for m in self.scene.corrections.reviews if m != mark], text="remove mark")
+
+    def next_window_where(self, predicate: Callable[[str | None], bool], direction: int = 1) -> int | None:
+        """Centre time of the next window (from the current one) whose review status satisfies
+        ``predicate`` (e.g. unreviewed: ``lambda s: s is None``); None if there is none."""
+        t0, t1 = self.time_range
+        w = self.view.window_us
+        t = self.view.t_us + direction * w
+        while t0 <= t <= t1:
+            if predicate(self.scene.corrections.review_status(t)):
+                return t
+            t += direction * w
+        return None
+
+    # ------------------------------------------------------------------ saving and journal
+    def save(self) -> Path:
+        path = self.scene.save_corrections()
+        self.history.set_clean()
+        self.discard_journal()
+        return path
+
+    @property
+    def journal_path(self) -> Path:
+        return self.scene.root / JOURNAL_NAME
+
+    def write_journal(self) -> Path | None:
+        """Autosave unsaved corrections beside the scene (atomic); nothing when clean."""
+        if not self.dirty:
+            return None
+        doc = self.scene.corrections.to_json()
+        doc["autosaved_at"] = time.time()
+        from .fileio import atomic_write_text
+
+        try:
+            return atomic_write_text(self.journal_path, json.dumps(doc, indent=1))
+        except OSError:
+            return None  # read-only scene folder: nothing to do, Save will tell the user
+
+    def pending_journal(self) -> Corrections | None:
+        """Corrections autosaved by a session that did not save (e.g. after a crash)."""
+        p = self.journal_path
+        if not p.exists():
+            return None
+        try:
+            data = json.loads(p.read_text())
+            data.pop("autosaved_at", None)
+            journal = Corrections.from_json(data, source=str(p))
+        except (OSError, json.JSONDecodeError, CorrectionsError):
+            return None
+        if journal.to_json() == self.scene.corrections.to_json():
+            return None
+        return journal
+
+    def restore_journal(self, journal: Corrections) -> None:
+        """Apply autosaved corrections as one undoable step."""
+        with self.history.group("restore autosaved corrections"):
+            for key in (("offset_us",), ("skew_ppm",), ("hand_eye",), ("reviews",)):
+                self.history.set(key, journal.get(key))
+            for name in set(self.object_names) | set(journal.object_deltas):
+                if name in self.object_names:
+                    self.history.set(("object", name), journal.object_delta(name))
+
+    def discard_journal(self) -> None:
+        try:
+            os.unlink(self.journal_path)
+        except OSError:
+            pass
+
+    # ------------------------------------------------------------------ snapshots for workers
+    def request(self) -> FrameRequest:
+        self._serial += 1
+        return FrameRequest(self.scene.with_corrections(self.scene.corrections.copy()), self.view, self._serial)
+
+
+# ---------------------------------------------------------------------- computation (thread-safe)
+class FrameComputer:
+    """Computes :class:`FrameData` and :class:`SpaceTimeData` from requests; caches the
+    rasteriser and per-object geometry between calls (use one instance per worker thread)."""
+
+    def __init__(self):
+        self._annotator: Annotator | None = None
+        self._key = None
+
+    def _annotator_for(self, scene: Scene) -> Annotator:
+        key = (id(scene.manifest),)
+        if self._annotator is None or self._key != key:
+            self._annotator = Annotator(scene, Request(keypoints=True, masks_visible=True, label_map=True, depth=True))
+            self._key = key
+        self._annotator.scene = scene
+        return self._annotator
+
+    def frame(self, req: FrameRequest) -> FrameData:
+        t_start = time.perf_counter()
+        scene, view = req.scene, req.view
+        cam = scene.camera
+        w = view.window()
+        ev = scene.events.window(w.t0_us, w.t1_us)
+        image = represent.to_rgb(view.representation, ev, cam.width, cam.height, w.t0_us, w.t1_us)
+        pos, neg = represent.polarity_counts(ev, cam.width, cam.height)
+        counts = pos + neg
+        ann = self._annotator_for(scene)
+        labels = ann.annotate(w)
+        overlays, mask_rgba, inside = [], None, None
+        names = scene.object_names
+        if labels.valid:
+            shown = [n not in view.hidden for n in names]
+            if "mask" in view.overlays:
+                mask_rgba = compose_masks_rgba(labels.label_map, [object_color(k) for k in range(len(names))],
+                                               view.mask_alpha, shown)
+            for k, o in enumerate(labels.objects):
+                if not shown[k]:
+                    continue
+                ov = ObjectOverlay(o.name, object_color(k))
+                if o.in_view:
+                    if "contour" in view.overlays:
+                        ov.contours = mask_contours(o.mask_visible)
+                    if "box" in view.overlays and o.corners_cam is not None:
+                        ov.box_segments = box_segments(cam, o.corners_cam)
+                    if "axes" in view.overlays:
+                        model = scene.model(o.name)
+                        ov.axes = axes_segments(cam, o.T_cam_obj, 0.5 * model.diameter_m, model.bbox_center_m)
+                    if "center" in view.overlays and o.center_uv is not None and np.all(np.isfinite(o.center_uv)):
+                        ov.center_uv = o.center_uv
+                overlays.append(ov)
+            inside = inside_fraction(ev, labels.label_map)
+        return FrameData(w, len(ev), image, counts, labels, mask_rgba, overlays, inside,
+                         (time.perf_counter() - t_start) * 1e3)
+
+    def spacetime(self, req: FrameRequest) -> SpaceTimeData:
+        scene, view = req.scene, req.view
+        span = int(view.spacetime_span_us)
+        t0 = int(view.t_us - span // 2)
+        ev = scene.events.window(t0, t0 + span)
+        n = len(ev)
+        if n > view.spacetime_budget:
+            idx = np.linspace(0, n - 1, view.spacetime_budget).astype(np.int64)
+            ev = ev[idx]
+        pts = np.empty((len(ev), 3), np.float32)
+        pts[:, 0] = ev.x
+        pts[:, 1] = ev.y
+        pts[:, 2] = (ev.t - view.t_us).astype(np.float32) * 1e-3
+        tubes = []
+        n_slices = max(int(view.spacetime_slices), 2)
+        times = t0 + (np.arange(n_slices) + 0.5) * (span / n_slices)
+        times = np.rint(times).astype(np.int64)
+        ann = self._annotator_for(scene)
+        T_co, T_bc, valid = ann.poses(times)
+        per_obj: dict[str, list[np.ndarray]] = {name: [] for name in scene.object_names}
+        for i, t in enumerate(times):
+            if not valid[i]:
+                continue
+            lab = ann.annotate(Window(-1, int(t), int(t) + 1, int(t)), pose=(T_co[i], T_bc[i], True))
+            for o in lab.objects:
+                if o.name in view.hidden or not o.in_view:
+                    continue
+                for c in mask_contours(o.mask_visible):
+                    poly = np.empty((len(c), 3), np.float32)
+                    poly[:, :2] = c
+                    poly[:, 2] = (t - view.t_us) * 1e-3
+                    per_obj[o.name].append(poly)
+        for k, name in enumerate(scene.object_names):
+            if per_obj[name]:
+                tubes.append((name, object_color(k), per_obj[name]))
+        return SpaceTimeData(int(view.t_us), pts, ev.p.copy(), n, tubes, span)
+
+
+def inside_fraction(ev: EventArray, label_map: np.ndarray, dilate_px: int = 2) -> float | None:
+    """Share of the events that fall on any object's mask dilated by ``dilate_px`` pixels
+    (None for an empty window)."""
+    if len(ev) == 0 or label_map is None:
+        return None
+    import cv2
+
+    mask = (label_map >= 0).astype(np.uint8)
+    if dilate_px > 0:
+        mask = cv2.dilate(mask, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+    return float(mask[ev.y, ev.x].mean())
+
+
+@dataclass
+class TimelineData:
+    """Whole-sequence curves on the event clock (seconds since the first event)."""
+
+    t_ref_us: int
+    t_s: np.ndarray          # bin centres, s
+    rate_hz: np.ndarray      # events per second
+    speed_mps: np.ndarray    # camera linear speed at the pose time of each bin (current clock)
+    angular_dps: np.ndarray  # camera angular speed, degrees per second
+    speed_valid: np.ndarray  # False where the pose time is outside the trajectory
+
+
+def timeline_data(scene: Scene, bin_us: int = 1000) -> TimelineData:
+    """Event rate and robot speed, the latter mapped through the clock in effect so a wrong
+    offset shows as a shift between the two curves."""
+    t_bins, counts = scene.events.rate(bin_us)
+    t_ref = scene.t_ref_us
+    centres = t_bins + bin_us // 2
+    t_pose = scene.clock.pose_time(centres) if len(centres) else centres
+    v, w, valid = scene.trajectory.speed(t_pose) if len(centres) else (np.zeros(0),) * 3
+    return TimelineData(t_ref, (centres - t_ref) * 1e-6, counts * (1e6 / bin_us), np.asarray(v),
+                        np.degrees(np.asarray(w)), np.asarray(valid, bool))

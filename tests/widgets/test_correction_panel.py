@@ -1,0 +1,86 @@
+import numpy as np
+import pytest
+from PySide6 import QtCore, QtWidgets
+
+from core.geometry import pose_error
+from widgets.correction_panel import CorrectionPanel
+
+
+@pytest.fixture
+def panel(qtbot, session):
+    w = CorrectionPanel(session)
+    qtbot.addWidget(w)
+    w.show()
+    return w
+
+
+def test_model_changes_show_in_the_panel(panel, session):
+    session.set_offset_correction_us(12_345)
+    assert panel.offset_spin.value() == 12_345
+    assert "+12.345 ms" in panel.offset_total.text()
+    session.set_skew_correction_ppm(-3.5)
+    assert panel.skew_spin.value() == pytest.approx(-3.5)
+    session.history.undo()
+    assert panel.skew_spin.value() == 0.0
+
+
+def test_spinbox_and_slider_edit_the_model_as_one_undo_step(panel, session):
+    panel.offset_spin.setValue(500)
+    panel.offset_spin.setValue(700)
+    assert session.scene.corrections.offset_us == 700 and len(session.history) == 1
+    session.history.break_merge()
+    panel.offset_slider.setValue(10)  # coarse: 100 us per tick
+    assert session.scene.corrections.offset_us == 1000
+    panel.offset_slider.setValue(25)
+    assert session.scene.corrections.offset_us == 2500 and len(session.history) == 2
+    session.history.undo()
+    assert session.scene.corrections.offset_us == 700
+
+
+def test_fine_slider_steps_around_the_current_value(panel, session):
+    session.set_offset_correction_us(20_000)
+    panel.offset_fine.setChecked(True)
+    panel.offset_slider.setValue(5)
+    assert session.scene.corrections.offset_us == 20_010
+
+
+def test_nudge_buttons_move_the_object_in_camera_axes(panel, session, qtbot):
+    panel.object_combo.setCurrentText("box")
+    panel.frame_combo.setCurrentIndex(0)  # camera
+    panel.trans_step.setCurrentIndex(2)  # 1 mm
+    T0, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
+    b = panel.findChild(QtWidgets.QToolButton, "translate_x_plus")
+    for _ in range(3):
+        qtbot.mouseClick(b, QtCore.Qt.LeftButton)
+    T1, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
+    d = T1[0, 0, :3, 3] - T0[0, 0, :3, 3]
+    np.testing.assert_allclose(d, [0.003, 0, 0], atol=1e-9)  # 3 mm along camera x
+    assert len(session.history) == 1  # merged into one undo step
+    rb = panel.findChild(QtWidgets.QToolButton, "rotate_z_plus")
+    panel.rot_step.setCurrentIndex(3)  # 1 degree
+    qtbot.mouseClick(rb, QtCore.Qt.LeftButton)
+    T2, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
+    _, dR = pose_error(T2[0, 0], T1[0, 0])
+    assert np.degrees(dR) == pytest.approx(1.0, abs=1e-9)
+    assert "Δ t 3.00 mm" in panel.object_delta.text() or "Δ t" in panel.object_delta.text()
+    session.history.undo()
+    session.history.undo()
+    T3, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
+    np.testing.assert_allclose(T3, T0, atol=1e-12)
+
+
+def test_reset_and_selection_sync(panel, session):
+    session.select("cylinder")
+    assert panel.object_combo.currentText() == "cylinder"
+    panel.nudge_object("translate", 2, 1, big=True)  # 10 mm along z
+    assert "cylinder" in session.scene.corrections.object_deltas
+    panel.object_combo.setCurrentText("cylinder")
+    session.reset("cylinder")
+    assert "cylinder" not in session.scene.corrections.object_deltas
+
+
+def test_nudge_offset_shortcut_steps(panel, session):
+    panel.offset_step.setCurrentIndex(2)  # 1 ms
+    panel.nudge_offset(+1)
+    panel.nudge_offset(+1, big=True)
+    assert session.scene.corrections.offset_us == 11_000

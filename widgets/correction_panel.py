@@ -1,0 +1,288 @@
+"""Manual corrections: clock offset and skew, per-object pose, hand-eye.
+
+Every change goes through the session (and so through the undo history); repeated nudges and
+slider drags merge into one undo step. Units are shown on every control: microseconds and ppm
+for the clock, millimetres and degrees for poses, with the axes of a selectable frame
+(camera: x right, y down, z forward; object: its own axes; base: the robot base).
+"""
+from __future__ import annotations
+
+import numpy as np
+from PySide6 import QtCore, QtWidgets
+
+from core.pose_edit import FRAMES, delta_components
+from core.session import Session
+
+OFFSET_LIMIT_US = 10_000_000
+TRANSLATION_STEPS_MM = (0.1, 0.5, 1.0, 2.0, 5.0, 10.0)
+ROTATION_STEPS_DEG = (0.05, 0.1, 0.5, 1.0, 2.0, 5.0)
+OFFSET_STEPS_US = (10, 100, 1000, 5000)
+FRAME_LABELS = {"camera": "camera (x right, y down, z forward)", "object": "object axes", "base": "robot base"}
+
+
+def _spin(lo, hi, step, decimals=None, suffix=""):
+    w = QtWidgets.QDoubleSpinBox() if decimals is not None else QtWidgets.QSpinBox()
+    if decimals is not None:
+        w.setDecimals(decimals)
+    w.setRange(lo, hi)
+    w.setSingleStep(step)
+    w.setSuffix(suffix)
+    w.setKeyboardTracking(False)
+    w.setAccelerated(True)
+    return w
+
+
+class _NudgeGrid(QtWidgets.QWidget):
+    """Buttons −/+ along x, y, z for translation and rotation; emits (kind, axis, sign)."""
+
+    nudged = QtCore.Signal(str, int, int)
+
+    def __init__(self, parent=None):
+        super().__init__(parent)
+        grid = QtWidgets.QGridLayout(self)
+        grid.setContentsMargins(0, 0, 0, 0)
+        grid.setSpacing(2)
+        for c, axis in enumerate("xyz"):
+            grid.addWidget(QtWidgets.QLabel(axis, alignment=QtCore.Qt.AlignCenter), 0, 1 + 2 * c, 1, 2)
+        for r, (kind, label) in enumerate((("translate", "move"), ("rotate", "rotate"))):
+            grid.addWidget(QtWidgets.QLabel(label), r + 1, 0)
+            for a in range(3):
+                for s, (sign, text) in enumerate(((-1, "−"), (1, "+"))):
+                    b = QtWidgets.QToolButton(text=text)
+                    b.setAutoRepeat(True)
+                    b.setAutoRepeatInterval(80)
+                    b.setToolTip(f"{label} {'-' if sign < 0 else '+'}{'xyz'[a]}")
+                    b.setObjectName(f"{kind}_{'xyz'[a]}_{'minus' if sign < 0 else 'plus'}")
+                    b.clicked.connect(lambda _=False, k=kind, ax=a, sg=sign: self.nudged.emit(k, ax, sg))
+                    grid.addWidget(b, r + 1, 1 + 2 * a + s)
+
+
+class CorrectionPanel(QtWidgets.QWidget):
+    """Clock, object-pose and hand-eye corrections of the session's scene.
+
+    Signals
+    -------
+    autoSyncRequested(), refineRequested(str)
+        Emitted by the Auto / Refine buttons (the app runs the estimation in a worker).
+    """
+
+    autoSyncRequested = QtCore.Signal()
+    refineRequested = QtCore.Signal(str)
+
+    def __init__(self, session: Session, parent=None):
+        super().__init__(parent)
+        self.session = session
+        self._updating = False
+        lay = QtWidgets.QVBoxLayout(self)
+        lay.setContentsMargins(4, 4, 4, 4)
+        lay.addWidget(self._clock_group())
+        lay.addWidget(self._object_group())
+        lay.addWidget(self._hand_eye_group())
+        lay.addStretch(1)
+        session.subscribe(self._on_session)
+        self.refresh()
+
+    # ------------------------------------------------------------------ construction
+    def _clock_group(self) -> QtWidgets.QGroupBox:
+        g = QtWidgets.QGroupBox("Clock (event → robot time)")
+        form = QtWidgets.QGridLayout(g)
+        self.offset_spin = _spin(-OFFSET_LIMIT_US, OFFSET_LIMIT_US, 100, suffix=" µs")
+        self.offset_spin.setToolTip("Correction added to the scene's prior offset (pose time − event time), "
+                                    "microseconds. Shortcuts: [ and ] (Shift: ×10).")
+        self.offset_step = QtWidgets.QComboBox()
+        for s in OFFSET_STEPS_US:
+            self.offset_step.addItem(f"{s:g} µs" if s < 1000 else f"{s / 1000:g} ms", s)
+        self.offset_step.setCurrentIndex(1)
+        self.offset_slider = QtWidgets.QSlider(QtCore.Qt.Horizontal)
+        self.offset_slider.setRange(-2500, 2500)
+        self.offset_fine = QtWidgets.QCheckBox("fine")
+        self.offset_fine.setToolTip("coarse: ±250 ms in 0.1 ms steps around 0; fine: ±5 ms in 2 µs steps "
+                                    "around the value when switched on")
+        self._slider_anchor, self._slider_unit = 0, 100
+        self.offset_total = QtWidgets.QLabel()
+        self.skew_spin = _spin(-5000.0, 5000.0, 1.0, decimals=3, suffix=" ppm")
+        self.skew_spin.setToolTip("Clock skew correction in parts per million (added to the prior)")
+        self.auto_button = QtWidgets.QPushButton("Auto…")
+        self.auto_button.setToolTip("Estimate offset and skew from the event rate vs the robot speed")
+        reset_offset = QtWidgets.QToolButton(text="⟲")
+        reset_offset.setToolTip("reset the offset correction to 0")
+        reset_skew = QtWidgets.QToolButton(text="⟲")
+        reset_skew.setToolTip("reset the skew correction to 0")
+        form.addWidget(QtWidgets.QLabel("offset"), 0, 0)
+        form.addWidget(self.offset_spin, 0, 1)
+        form.addWidget(self.offset_step, 0, 2)
+        form.addWidget(reset_offset, 0, 3)
+        form.addWidget(self.offset_slider, 1, 0, 1, 3)
+        form.addWidget(self.offset_fine, 1, 3)
+        form.addWidget(self.offset_total, 2, 0, 1, 4)
+        form.addWidget(QtWidgets.QLabel("skew"), 3, 0)
+        form.addWidget(self.skew_spin, 3, 1)
+        form.addWidget(self.auto_button, 3, 2)
+        form.addWidget(reset_skew, 3, 3)
+        self.offset_spin.valueChanged.connect(lambda v: self._set_offset(int(v)))
+        self.offset_step.currentIndexChanged.connect(lambda _: self.offset_spin.setSingleStep(self.offset_step.currentData()))
+        self.offset_spin.setSingleStep(self.offset_step.currentData())
+        self.offset_slider.valueChanged.connect(self._slider_moved)
+        self.offset_slider.sliderReleased.connect(self.session.history.break_merge)
+        self.offset_fine.toggled.connect(self._fine_toggled)
+        self.skew_spin.valueChanged.connect(lambda v: None if self._updating else self.session.set_skew_correction_ppm(v))
+        self.auto_button.clicked.connect(self.autoSyncRequested)
+        reset_offset.clicked.connect(lambda: self.session.reset("offset_us"))
+        reset_skew.clicked.connect(lambda: self.session.reset("skew_ppm"))
+        return g
+
+    def _object_group(self) -> QtWidgets.QGroupBox:
+        g = QtWidgets.QGroupBox("Object pose")
+        v = QtWidgets.QVBoxLayout(g)
+        row = QtWidgets.QHBoxLayout()
+        self.object_combo = QtWidgets.QComboBox()
+        self.object_combo.addItems(self.session.object_names)
+        self.frame_combo = QtWidgets.QComboBox()
+        for f in FRAMES:
+            self.frame_combo.addItem(FRAME_LABELS[f], f)
+        row.addWidget(self.object_combo, 1)
+        row.addWidget(QtWidgets.QLabel("axes"))
+        row.addWidget(self.frame_combo, 1)
+        v.addLayout(row)
+        row = QtWidgets.QHBoxLayout()
+        self.trans_step = QtWidgets.QComboBox()
+        for s in TRANSLATION_STEPS_MM:
+            self.trans_step.addItem(f"{s:g} mm", s)
+        self.trans_step.setCurrentIndex(2)
+        self.rot_step = QtWidgets.QComboBox()
+        for s in ROTATION_STEPS_DEG:
+            self.rot_step.addItem(f"{s:g}°", s)
+        self.rot_step.setCurrentIndex(2)
+        row.addWidget(QtWidgets.QLabel("step"))
+        row.addWidget(self.trans_step)
+        row.addWidget(self.rot_step)
+        row.addStretch(1)
+        v.addLayout(row)
+        self.object_nudges = _NudgeGrid()
+        self.object_nudges.nudged.connect(lambda k, a, s: self.nudge_object(k, a, s))
+        v.addWidget(self.object_nudges)
+        self.object_delta = QtWidgets.QLabel()
+        self.object_delta.setWordWrap(True)
+        v.addWidget(self.object_delta)
+        row = QtWidgets.QHBoxLayout()
+        self.refine_button = QtWidgets.QPushButton("Refine from events")
+        self.refine_button.setToolTip("Fit this object's pose to the event edges over several windows")
+        reset = QtWidgets.QPushButton("Reset pose")
+        row.addWidget(self.refine_button)
+        row.addWidget(reset)
+        v.addLayout(row)
+        self.object_combo.currentTextChanged.connect(self._object_chosen)
+        self.refine_button.clicked.connect(lambda: self.refineRequested.emit(self.current_object() or ""))
+        reset.clicked.connect(lambda: self.current_object() and self.session.reset(self.current_object()))
+        return g
+
+    def _hand_eye_group(self) -> QtWidgets.QGroupBox:
+        g = QtWidgets.QGroupBox("Hand-eye (camera frame)")
+        g.setCheckable(True)
+        g.setChecked(False)
+        inner = QtWidgets.QWidget()
+        v = QtWidgets.QVBoxLayout(inner)
+        v.setContentsMargins(0, 0, 0, 0)
+        self.hand_eye_nudges = _NudgeGrid()
+        self.hand_eye_nudges.nudged.connect(self._nudge_hand_eye)
+        v.addWidget(self.hand_eye_nudges)
+        self.hand_eye_delta = QtWidgets.QLabel()
+        v.addWidget(self.hand_eye_delta)
+        reset = QtWidgets.QPushButton("Reset hand-eye")
+        reset.clicked.connect(lambda: self.session.reset("hand_eye"))
+        v.addWidget(reset)
+        QtWidgets.QVBoxLayout(g).addWidget(inner)
+        inner.setVisible(False)
+        g.toggled.connect(inner.setVisible)
+        return g
+
+    # ------------------------------------------------------------------ actions
+    def current_object(self) -> str | None:
+        return self.object_combo.currentText() or None
+
+    def current_frame(self) -> str:
+        return self.frame_combo.currentData()
+
+    def _object_chosen(self, name: str) -> None:
+        if not self._updating and name:
+            self.session.select(name)
+        self._refresh_object()
+
+    def _set_offset(self, value_us: int) -> None:
+        if not self._updating:
+            self.session.set_offset_correction_us(value_us)
+
+    def _slider_moved(self, k: int) -> None:
+        if not self._updating:
+            self.session.set_offset_correction_us(self._slider_anchor + k * self._slider_unit)
+
+    def _fine_toggled(self, fine: bool) -> None:
+        if fine:
+            self._slider_anchor, self._slider_unit = self.session.scene.corrections.offset_us, 2
+        else:
+            self._slider_anchor, self._slider_unit = 0, 100
+        self.session.history.break_merge()
+        self.refresh()
+
+    def nudge_offset(self, sign: int, big: bool = False) -> None:
+        """Step the offset by the chosen step (×10 with ``big``)."""
+        step = int(self.offset_step.currentData()) * (10 if big else 1)
+        self.session.set_offset_correction_us(self.session.scene.corrections.offset_us + sign * step)
+
+    def nudge_object(self, kind: str, axis: int, sign: int, big: bool = False) -> None:
+        """Nudge the selected object along/about ``axis`` of the chosen frame by one step."""
+        name = self.current_object()
+        if not name:
+            return
+        vec = np.zeros(3)
+        if kind == "translate":
+            vec[axis] = sign * self.trans_step.currentData() * (10 if big else 1)
+            self.session.nudge_object(name, self.current_frame(), trans_mm=vec)
+        else:
+            vec[axis] = sign * self.rot_step.currentData() * (10 if big else 1)
+            self.session.nudge_object(name, self.current_frame(), rot_deg=vec)
+
+    def _nudge_hand_eye(self, kind: str, axis: int, sign: int) -> None:
+        vec = np.zeros(3)
+        if kind == "translate":
+            vec[axis] = sign * self.trans_step.currentData()
+            self.session.nudge_hand_eye(trans_mm=vec)
+        else:
+            vec[axis] = sign * self.rot_step.currentData()
+            self.session.nudge_hand_eye(rot_deg=vec)
+
+    # ------------------------------------------------------------------ model -> view
+    def _on_session(self, what: str) -> None:
+        if what in ("document", "history", "objects"):
+            self.refresh()
+
+    def refresh(self) -> None:
+        self._updating = True
+        try:
+            c = self.session.scene.corrections
+            m = self.session.scene.manifest
+            self.offset_spin.setValue(int(np.clip(c.offset_us, -OFFSET_LIMIT_US, OFFSET_LIMIT_US)))
+            k = int(round((c.offset_us - self._slider_anchor) / self._slider_unit))
+            self.offset_slider.setValue(int(np.clip(k, self.offset_slider.minimum(), self.offset_slider.maximum())))
+            self.skew_spin.setValue(c.skew_ppm)
+            clock = self.session.scene.clock
+            self.offset_total.setText(f"in effect: {clock.offset_us / 1000:+.3f} ms = prior {m.clock_offset_us / 1000:+.3f} ms "
+                                      f"+ correction {c.offset_us / 1000:+.3f} ms;  skew {clock.skew_ppm:+.3f} ppm")
+            sel = self.session.view.selected
+            if sel and sel != self.object_combo.currentText():
+                self.object_combo.setCurrentText(sel)
+            rv, t = delta_components(c.hand_eye_delta)
+            self.hand_eye_delta.setText(f"Δ rot {np.linalg.norm(rv):.3f}° [{rv[0]:+.2f}, {rv[1]:+.2f}, {rv[2]:+.2f}]°,"
+                                        f" Δ t {np.linalg.norm(t):.2f} mm [{t[0]:+.2f}, {t[1]:+.2f}, {t[2]:+.2f}] mm")
+        finally:
+            self._updating = False
+        self._refresh_object()
+
+    def _refresh_object(self) -> None:
+        name = self.current_object()
+        if not name:
+            self.object_delta.setText("")
+            return
+        rv, t = delta_components(self.session.scene.corrections.object_delta(name))
+        self.object_delta.setText(f"correction (base frame): Δ rot {np.linalg.norm(rv):.3f}°, "
+                                  f"Δ t {np.linalg.norm(t):.2f} mm [{t[0]:+.2f}, {t[1]:+.2f}, {t[2]:+.2f}] mm")

@@ -1,0 +1,196 @@
+"""The current window's event frame with per-object overlays (pyqtgraph).
+
+Scene coordinates equal OpenCV pixel coordinates: the image item spans ``[-0.5, W - 0.5)`` so
+a pixel centre ``(u, v)`` sits at integer coordinates and overlays computed in core line up
+without offsets. The view is the raw (distorted) sensor image, where the events are.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from core.overlay import AXIS_COLORS
+from core.session import FrameData, Session
+
+
+def _polylines_to_nan_separated(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate polylines with NaN breaks for one ``PlotCurveItem(connect='finite')``."""
+    if not polys:
+        return np.zeros(0), np.zeros(0)
+    parts = []
+    for p in polys:
+        parts.append(p[:, :2])
+        parts.append(np.full((1, 2), np.nan))
+    xy = np.concatenate(parts)
+    return xy[:, 0], xy[:, 1]
+
+
+def _segments_to_pairs(segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 2, 2) segments -> x, y arrays for ``PlotCurveItem(connect='pairs')``."""
+    flat = np.asarray(segs, dtype=np.float64).reshape(-1, 2)
+    return flat[:, 0], flat[:, 1]
+
+
+class FrameView(QtWidgets.QWidget):
+    """Shows :class:`~core.session.FrameData`; reports hover information.
+
+    Signals
+    -------
+    hoverText(str)
+        ``"u, v | n events | object | depth"`` under the cursor (empty when outside).
+    """
+
+    hoverText = QtCore.Signal(str)
+
+    def __init__(self, session: Session, parent=None):
+        super().__init__(parent)
+        self.session = session
+        self.frame: FrameData | None = None
+        self._items: dict[str, dict[str, pg.GraphicsObject]] = {}
+
+        self.glw = pg.GraphicsLayoutWidget()
+        self.glw.setBackground("w")
+        self.vb: pg.ViewBox = self.glw.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
+        self.vb.setDefaultPadding(0.01)
+        self.image_item = pg.ImageItem(axisOrder="row-major")
+        self.mask_item = pg.ImageItem(axisOrder="row-major")
+        self.vb.addItem(self.image_item)
+        self.vb.addItem(self.mask_item)
+        cam = session.scene.camera
+        rect = QtCore.QRectF(-0.5, -0.5, cam.width, cam.height)
+        self.image_item.setRect(rect)
+        self.mask_item.setRect(rect)
+        self.mask_item.setZValue(1)
+        self.axis_items = [pg.PlotCurveItem(pen=pg.mkPen(c, width=2), connect="pairs") for c in AXIS_COLORS]
+        for it in self.axis_items:
+            it.setZValue(4)
+            self.vb.addItem(it)
+        self.center_item = pg.ScatterPlotItem(size=9, symbol="+", pen=pg.mkPen("k", width=2))
+        self.center_item.setZValue(5)
+        self.vb.addItem(self.center_item)
+        self.message = pg.TextItem("", color=(200, 0, 0), anchor=(0, 0))
+        self.message.setZValue(10)
+        self.vb.addItem(self.message)
+        self.message.setPos(0, 0)
+        for name in session.object_names:
+            self._ensure_items(name)
+        self.vb.setRange(rect, padding=0.01)
+
+        self.readout = QtWidgets.QLabel(" ")
+        self.readout.setTextInteractionFlags(QtCore.Qt.TextSelectableByMouse)
+        self.info = QtWidgets.QLabel(" ")
+        lay = QtWidgets.QVBoxLayout(self)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.addWidget(self.glw, 1)
+        row = QtWidgets.QHBoxLayout()
+        row.addWidget(self.info, 1)
+        row.addWidget(self.readout, 0)
+        lay.addLayout(row)
+        self._hover: tuple[int, int] | None = None
+        self._proxy = pg.SignalProxy(self.glw.scene().sigMouseMoved, rateLimit=30, slot=self._mouse_moved)
+
+    # ------------------------------------------------------------------ items
+    def _ensure_items(self, name: str) -> dict:
+        if name in self._items:
+            return self._items[name]
+        color = self.session.color(name)
+        items = {
+            "contour": pg.PlotCurveItem(pen=pg.mkPen(color, width=2), connect="finite"),
+            "box": pg.PlotCurveItem(pen=pg.mkPen(color, width=1.5), connect="pairs"),
+        }
+        items["contour"].setZValue(3)
+        items["box"].setZValue(2)
+        for it in items.values():
+            self.vb.addItem(it)
+        self._items[name] = items
+        return items
+
+    def reset_zoom(self) -> None:
+        cam = self.session.scene.camera
+        self.vb.setRange(QtCore.QRectF(-0.5, -0.5, cam.width, cam.height), padding=0.01)
+
+    # ------------------------------------------------------------------ data
+    def set_frame(self, data: FrameData) -> None:
+        """Display a computed frame (called on the GUI thread)."""
+        self.frame = data
+        self.image_item.setImage(data.image_rgb, autoLevels=False, levels=(0, 255))
+        if data.mask_rgba is not None:
+            self.mask_item.setImage(data.mask_rgba, autoLevels=False, levels=None)
+            self.mask_item.setVisible(True)
+        else:
+            self.mask_item.setVisible(False)
+        shown = {o.name: o for o in data.overlays}
+        axes = [[], [], []]
+        centers = []
+        for name in self.session.object_names:
+            items = self._ensure_items(name)
+            ov = shown.get(name)
+            if ov is None:
+                for it in items.values():
+                    it.setData([], [])
+                continue
+            items["contour"].setData(*_polylines_to_nan_separated(ov.contours))
+            items["box"].setData(*_segments_to_pairs(ov.box_segments))
+            for k in range(3):
+                if len(ov.axes) == 3 and len(ov.axes[k]):
+                    axes[k].append(ov.axes[k])
+            if ov.center_uv is not None:
+                centers.append({"pos": tuple(ov.center_uv), "pen": pg.mkPen(ov.color, width=2.5)})
+            width = 3.5 if name == self.session.view.selected else 2.0
+            items["contour"].setPen(pg.mkPen(ov.color, width=width))
+        for k in range(3):
+            segs = np.concatenate(axes[k]) if axes[k] else np.zeros((0, 2, 2))
+            self.axis_items[k].setData(*_segments_to_pairs(segs))
+        self.center_item.setData(centers)
+        w = data.window
+        if not data.labels.valid:
+            self.message.setText(f"no label: {data.labels.reason}")
+        else:
+            self.message.setText("")
+        inside = "–" if data.inside_fraction is None else f"{100 * data.inside_fraction:.1f}%"
+        t_rel = (w.t_label_us - self.session.time_range[0]) / 1e6
+        self.info.setText(f"t = {t_rel:.4f} s   window {(w.t1_us - w.t0_us) / 1000:g} ms   "
+                          f"{data.n_events:,} events   on masks {inside}   ({data.compute_ms:.0f} ms)")
+        self._update_readout()
+
+    # ------------------------------------------------------------------ hover
+    def _mouse_moved(self, evt) -> None:
+        pos = evt[0]
+        if not self.vb.sceneBoundingRect().contains(pos):
+            self._hover = None
+        else:
+            p = self.vb.mapSceneToView(pos)
+            self._hover = (int(np.floor(p.x() + 0.5)), int(np.floor(p.y() + 0.5)))
+        self._update_readout()
+
+    def hover_info(self, u: int, v: int) -> dict | None:
+        """What is at pixel (u, v) in the current frame (None outside the image)."""
+        f = self.frame
+        if f is None or not (0 <= u < f.counts.shape[1] and 0 <= v < f.counts.shape[0]):
+            return None
+        info = {"u": u, "v": v, "events": int(f.counts[v, u]), "object": None, "depth_m": None}
+        lab = f.labels
+        if lab.valid and lab.label_map is not None:
+            k = int(lab.label_map[v, u])
+            if k >= 0:
+                info["object"] = lab.objects[k].name
+                if lab.depth_m is not None and np.isfinite(lab.depth_m[v, u]):
+                    info["depth_m"] = float(lab.depth_m[v, u])
+        return info
+
+    def _update_readout(self) -> None:
+        info = self.hover_info(*self._hover) if self._hover else None
+        if info is None:
+            text = ""
+        else:
+            text = f"u {info['u']}, v {info['v']} | {info['events']} ev"
+            if info["object"]:
+                text += f" | {info['object']}"
+                if info["depth_m"] is not None:
+                    text += f" @ {info['depth_m'] * 1000:.1f} mm"
+        self.readout.setText(text or " ")
+        self.hoverText.emit(text)
+
+    def grab_image(self) -> QtGui.QImage:
+        return self.glw.grab().toImage()

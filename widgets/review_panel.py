@@ -1,0 +1,112 @@
+"""Review marks: verified / rejected / flagged over the current window or a time range."""
+from __future__ import annotations
+
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from core.corrections import REVIEW_STATUSES
+from core.session import Session
+
+STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
+STATUS_KEYS = {"verified": "V", "rejected": "R", "flagged": "F"}
+
+
+class ReviewPanel(QtWidgets.QWidget):
+    """Mark the current window (or a range started with "Range start") and navigate marks."""
+
+    def __init__(self, session: Session, parent=None):
+        super().__init__(parent)
+        self.session = session
+        self._range_start: int | None = None
+        lay = QtWidgets.QVBoxLayout(self)
+        lay.setContentsMargins(4, 4, 4, 4)
+        row = QtWidgets.QHBoxLayout()
+        self.buttons = {}
+        for status in REVIEW_STATUSES:
+            b = QtWidgets.QPushButton(f"{status.capitalize()} ({STATUS_KEYS[status]})")
+            b.setStyleSheet(f"color: rgb{STATUS_COLORS[status]}; font-weight: bold")
+            b.clicked.connect(lambda _=False, s=status: self.mark(s))
+            self.buttons[status] = b
+            row.addWidget(b)
+        lay.addLayout(row)
+        row = QtWidgets.QHBoxLayout()
+        self.note = QtWidgets.QLineEdit(placeholderText="note (optional)")
+        self.scope = QtWidgets.QComboBox()
+        self.scope.addItem("all objects", None)
+        for n in session.object_names:
+            self.scope.addItem(n, n)
+        row.addWidget(self.note, 2)
+        row.addWidget(self.scope, 1)
+        lay.addLayout(row)
+        row = QtWidgets.QHBoxLayout()
+        self.range_button = QtWidgets.QPushButton("Range start")
+        self.range_button.setCheckable(True)
+        self.range_button.setToolTip("Start a range at the current window; the next mark covers everything up to "
+                                     "the current window")
+        self.range_button.toggled.connect(self._range_toggled)
+        self.next_unreviewed = QtWidgets.QPushButton("Next unreviewed (N)")
+        self.next_flagged = QtWidgets.QPushButton("Next flagged (Shift+N)")
+        self.next_unreviewed.clicked.connect(lambda: self.goto_next(lambda s: s is None))
+        self.next_flagged.clicked.connect(lambda: self.goto_next(lambda s: s == "flagged"))
+        row.addWidget(self.range_button)
+        row.addWidget(self.next_unreviewed)
+        row.addWidget(self.next_flagged)
+        lay.addLayout(row)
+        self.list = QtWidgets.QListWidget()
+        self.list.itemDoubleClicked.connect(self._jump)
+        lay.addWidget(self.list, 1)
+        remove = QtWidgets.QPushButton("Remove mark")
+        remove.clicked.connect(self._remove_selected)
+        lay.addWidget(remove)
+        self.status = QtWidgets.QLabel()
+        lay.addWidget(self.status)
+        session.subscribe(self._on_session)
+        self.refresh()
+
+    def _range_toggled(self, on: bool) -> None:
+        self._range_start = self.session.view.window().t0_us if on else None
+
+    def mark(self, status: str) -> None:
+        """Mark the current window, or the range from "Range start" to the current window."""
+        w = self.session.view.window()
+        t0, t1 = w.t0_us, w.t1_us
+        if self._range_start is not None:
+            t0, t1 = min(self._range_start, t0), max(self._range_start, w.t0_us) + (w.t1_us - w.t0_us)
+            self.range_button.setChecked(False)
+        self.session.add_review(status, t0, t1, self.note.text().strip(), self.scope.currentData())
+        self.note.clear()
+
+    def goto_next(self, predicate) -> bool:
+        t = self.session.next_window_where(predicate)
+        if t is None:
+            self.status.setText("none found after the current window")
+            return False
+        self.session.set_time(t)
+        self.status.setText("")
+        return True
+
+    def _jump(self, item: QtWidgets.QListWidgetItem) -> None:
+        mark = item.data(QtCore.Qt.UserRole)
+        self.session.set_time((mark.t0_us + mark.t1_us) // 2)
+
+    def _remove_selected(self) -> None:
+        item = self.list.currentItem()
+        if item is not None:
+            self.session.remove_review(item.data(QtCore.Qt.UserRole))
+
+    def _on_session(self, what: str) -> None:
+        if what in ("reviews", "history", "document"):
+            self.refresh()
+
+    def refresh(self) -> None:
+        self.list.clear()
+        t_ref = self.session.time_range[0]
+        for m in sorted(self.session.scene.corrections.reviews, key=lambda m: m.t0_us):
+            text = f"{m.status:9s} {(m.t0_us - t_ref) / 1e6:8.3f}–{(m.t1_us - t_ref) / 1e6:.3f} s"
+            if m.object:
+                text += f"  [{m.object}]"
+            if m.note:
+                text += f"  {m.note}"
+            item = QtWidgets.QListWidgetItem(text)
+            item.setForeground(QtGui.QColor(*STATUS_COLORS[m.status]))
+            item.setData(QtCore.Qt.UserRole, m)
+            self.list.addItem(item)
