@@ -1,0 +1,107 @@
+"""Corrected-dataset exports: E-POSE layout, BOP, HDF5.
+
+Atomic per file, resumable, with ``progress(fraction, message)`` and ``cancel() -> bool`` callbacks;
+no knowledge of threads or GUI (the app calls :func:`export_scene` from a worker thread).
+See :mod:`core.export.common` for windows, resume and the process pool, and the writer modules for
+every file and encoding.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .common import FORMATS, ExportError, ExportSummary, run_export
+
+__all__ = ["export_scene", "make_writer", "ExportSummary", "ExportError", "FORMATS"]
+
+
+def make_writer(fmt: str, format_options: dict | None = None):
+    """The :class:`~core.export.common.FormatWriter` of a format name, with its options."""
+    opts = dict(format_options or {})
+    if fmt == "epose":
+        from .epose import EposeWriter
+
+        cls = EposeWriter
+    elif fmt == "bop":
+        from .bop import BopWriter
+
+        cls = BopWriter
+    elif fmt == "h5":
+        from .h5 import H5Writer
+
+        cls = H5Writer
+    else:
+        raise ExportError(f"format: unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
+    try:
+        return cls(**opts)
+    except TypeError as exc:
+        raise ExportError(f"format_options: {exc}") from None
+
+
+def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, window_events: int | None = None,
+                 label_at: str = "center", only_verified: bool = False, objects=None, margin_m: float = 0.0,
+                 jobs: int = 1, force: bool = False, progress=None, cancel=None, format_options: dict | None = None,
+                 durable=True) -> ExportSummary:
+    """Export a scene's corrected labels.
+
+    Parameters
+    ----------
+    scene_or_path : core.scene.Scene or path
+        A scene (its current corrections are used, frozen at the start) or a scene folder / scene.toml
+        (its ``corrections.json`` is loaded).
+    fmt : {"epose", "bop", "h5"}
+    out_dir : path
+        Output folder: new, empty, or an earlier export of the same configuration (resumed).
+    window_us : int
+        Window length in µs (ignored when ``window_events`` is given).
+    window_events : int, optional
+        Events per window instead of a fixed length.
+    label_at : {"center", "end"}
+        Label time of a window: its centre (default) or its end (E-POSE's timing).
+    only_verified : bool
+        Export only windows whose every instant is effectively ``verified`` for every exported object
+        (see :func:`core.export.common.verified_mask`).
+    objects : list of str or comma-separated str, optional
+        Objects to export (default all). Objects not exported still occlude exported ones.
+    margin_m : float
+        Enlarge the 3D box by this many metres on every side (keypoints).
+    jobs : int
+        Worker processes (``spawn`` pool); 1 runs in this process.
+    force : bool
+        Replace an earlier evpose export of a different configuration in ``out_dir``.
+    progress : callable, optional
+        ``progress(fraction, message)``.
+    cancel : callable, optional
+        ``cancel() -> bool``; True stops the export, raising :class:`core.events.Cancelled`. The
+        folder is left without partial or temp files and a rerun resumes.
+    format_options : dict, optional
+        Writer options: epose ``png_compression``; bop ``K_new`` (3x3, default K), ``scene_id``,
+        ``png_compression``; h5 ``three_channel`` (bool), ``compression`` ("blosc-lz4" | "gzip" | None).
+    durable : bool or {"batch", "file", "none"}
+        Durability across a power cut; every mode keeps each file atomic for readers (temp file +
+        rename). ``True`` / "batch" (default): after each chunk of windows the filesystem is synced
+        (``syncfs``) before the parent journals the chunk as complete, so a journaled window is
+        durable (one commit per chunk instead of one fsync per file: per-file fsync costs 2-3 ms on
+        the development disk, i.e. 30+ ms for the 13 files of a 3-object E-POSE window). "file":
+        fsync every file before its rename (``core.fileio.atomic_path`` semantics). ``False`` /
+        "none": no fsync at all.
+
+    Returns
+    -------
+    ExportSummary
+    """
+    from ..scene import Scene
+
+    writer = make_writer(fmt, format_options)
+    if isinstance(objects, str):
+        objects = [s.strip() for s in objects.split(",") if s.strip()]
+    if isinstance(scene_or_path, (str, Path)):
+        scene = Scene.open(scene_or_path)
+        try:
+            return run_export(scene, writer, out_dir, window_us=window_us, window_events=window_events,
+                              label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
+                              jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel)
+        finally:
+            scene.close()
+    return run_export(scene_or_path, writer, out_dir, window_us=window_us, window_events=window_events,
+                      label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
+                      jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel)

@@ -1,0 +1,280 @@
+"""BOP export: exact poses after ground-truth corrections, exact clock round trip through the
+sidecar, masks of the undistorted camera vs open3d, layout. JSON is read back with the plain json
+module (an independent reader)."""
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from core.corrections import ReviewMark
+from core.export import export_scene
+from core.represent import undistorter_for
+from core.scene import Scene
+from core.synth import load_ground_truth
+
+
+def read_trajectory(scene_dir):
+    data = np.loadtxt(Path(scene_dir) / "trajectory.csv", delimiter=",", skiprows=1, dtype=object)
+    return data[:, 0].astype(np.int64), data[:, 1:4].astype(np.float64), data[:, 4:8].astype(np.float64)
+
+
+def T_base_cam_at(traj, t_pose_us: float) -> np.ndarray:
+    t, pos, q = traj
+    i = int(np.searchsorted(t, int(np.floor(t_pose_us)), side="right") - 1)
+    i = min(max(i, 0), len(t) - 2)
+    a = (t_pose_us - t[i]) / float(t[i + 1] - t[i])
+    assert -1e-9 <= a <= 1 + 1e-9
+    T = np.eye(4)
+    T[:3, :3] = Slerp([0.0, 1.0], Rotation.from_quat(q[i:i + 2]))([a]).as_matrix()[0]
+    T[:3, 3] = pos[i] + a * (pos[i + 1] - pos[i])
+    return T
+
+
+def pose_time(t_event, offset_us, skew_ppm, t_ref):
+    """Independent clock model (DESIGN section 3), in float relative arithmetic."""
+    return t_event + offset_us + skew_ppm * 1e-6 * (t_event - t_ref)
+
+
+def set_ground_truth(scene, gt):
+    scene.corrections.set(("offset_us",), gt["clock"]["offset_us"] - scene.manifest.clock_offset_us)
+    scene.corrections.set(("skew_ppm",), gt["clock"]["skew_ppm"] - scene.manifest.clock_skew_ppm)
+    for n in scene.object_names:
+        T_true = np.array(gt["objects"][n]["T_base_obj"])
+        scene.corrections.set(("object", n), T_true @ np.linalg.inv(scene.manifest.object(n).T_base_obj))
+
+
+@pytest.fixture(scope="module")
+def gt_export(tiny_scene_dir, tmp_path_factory):
+    base = tmp_path_factory.mktemp("bop")
+    scene_dir = base / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    gt = load_ground_truth(scene_dir)
+    scene = Scene.open(scene_dir)
+    set_ground_truth(scene, gt)
+    scene.save_corrections()
+    scene.close()
+    out = base / "out"
+    s = export_scene(scene_dir, "bop", out)
+    return scene_dir, out, s, gt
+
+
+def test_poses_equal_ground_truth(gt_export):
+    scene_dir, out, s, gt = gt_export
+    assert s.written == s.windows_total == 80
+    sd = out / "000000"
+    scene_gt = json.loads((sd / "scene_gt.json").read_text())
+    times = json.loads((sd / "scene_times.json").read_text())
+    cams = json.loads((sd / "scene_camera.json").read_text())
+    info = json.loads((out / "models" / "models_info.json").read_text())
+    assert set(scene_gt) == set(times) == set(cams) and len(scene_gt) == 80
+    traj = read_trajectory(scene_dir)
+    names = list(gt["objects"])
+    ids = [gt["objects"][n]["class_id"] for n in names]
+    assert sorted(int(k) for k in info) == sorted(ids)
+    c = gt["clock"]
+    worst_t = worst_R = 0.0
+    for im_id, entries in scene_gt.items():
+        t_label = times[im_id]["t_label_us"]
+        T_bc = T_base_cam_at(traj, pose_time(t_label, c["offset_us"], c["skew_ppm"], c["t_ref_us"]))
+        assert [e["obj_id"] for e in entries] == ids
+        for e, n in zip(entries, names):
+            T = np.linalg.inv(T_bc) @ np.array(gt["objects"][n]["T_base_obj"])
+            worst_t = max(worst_t, np.abs(np.array(e["cam_t_m2c"]) - T[:3, 3] * 1000.0).max())
+            worst_R = max(worst_R, np.abs(np.array(e["cam_R_m2c"]).reshape(3, 3) - T[:3, :3]).max())
+        T_cb = np.linalg.inv(T_bc)
+        np.testing.assert_allclose(np.array(cams[im_id]["cam_t_w2c"]), T_cb[:3, 3] * 1000.0, atol=1e-6)
+        np.testing.assert_allclose(np.array(cams[im_id]["cam_R_w2c"]).reshape(3, 3), T_cb[:3, :3], atol=1e-9)
+    assert worst_t <= 1e-6, worst_t      # mm
+    assert worst_R <= 1e-9, worst_R
+
+
+def test_layout_and_gt_info(gt_export):
+    scene_dir, out, s, gt = gt_export
+    sd = out / "000000"
+    scene = Scene.open(scene_dir)
+    H, W = scene.camera.height, scene.camera.width
+    cams = json.loads((sd / "scene_camera.json").read_text())
+    ginfo = json.loads((sd / "scene_gt_info.json").read_text())
+    cam_json = json.loads((out / "camera.json").read_text())
+    assert cam_json["fx"] == scene.camera.K[0, 0] and cam_json["width"] == W
+    for im_id in list(ginfo)[::9]:
+        i = int(im_id)
+        assert cams[im_id]["cam_K"] == scene.camera.K.ravel().tolist()      # K_new = K by default
+        rgb = cv2.imread(str(sd / "rgb" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
+        assert rgb.shape == (H, W, 3) and not rgb[..., 1].any()             # ON red, OFF blue, G = 0
+        for g, e in enumerate(ginfo[im_id]):
+            full = cv2.imread(str(sd / "mask" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
+            vis = cv2.imread(str(sd / "mask_visib" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
+            assert set(np.unique(full)) <= {0, 255} and set(np.unique(vis)) <= {0, 255}
+            assert e["px_count_all"] == int((full > 0).sum()) and e["px_count_visib"] == int((vis > 0).sum())
+            assert not ((vis > 0) & (full == 0)).any()
+            assert e["px_count_valid"] <= e["px_count_all"]
+            assert e["visib_fract"] == pytest.approx(e["px_count_visib"] / e["px_count_all"] if e["px_count_all"] else 0)
+            if e["px_count_visib"]:
+                ys, xs = np.nonzero(vis)
+                assert e["bbox_visib"] == [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
+    ply = (out / "models" / "obj_000001.ply").read_bytes()
+    assert ply.startswith(b"ply")
+    models_info = json.loads((out / "models" / "models_info.json").read_text())
+    lo, hi = scene.model("box").bbox_min_max
+    assert models_info["1"]["size_x"] == pytest.approx((hi[0] - lo[0]) * 1000)
+    assert models_info["1"]["diameter"] == pytest.approx(scene.model("box").diameter_m * 1000)
+
+
+def test_rgb_preserves_event_counts(gt_export):
+    """Events are moved to undistorted pixels one by one (never resampled as an image)."""
+    scene_dir, out, s, _ = gt_export
+    scene = Scene.open(scene_dir)
+    times = json.loads((out / "000000" / "scene_times.json").read_text())
+    und = undistorter_for(scene.camera)
+    for im_id in list(times)[10:70:15]:
+        t = times[im_id]
+        ev = scene.events.window(t["t_start_us"], t["t_end_us"])
+        assert len(ev) == t["n_events"]
+        evu = und.apply(ev)
+        assert len(evu) == t["n_events_in_image"]
+        rgb = cv2.imread(str(out / "000000" / "rgb" / f"{int(im_id):06d}.png"))[..., ::-1]
+        lit = np.zeros(rgb.shape[:2], bool)
+        lit[evu.y, evu.x] = True
+        assert np.array_equal(rgb.max(axis=2) > 0, lit)
+        on = np.zeros_like(lit)
+        on[evu.y[evu.p == 1], evu.x[evu.p == 1]] = True
+        assert not (rgb[..., 0] > 0)[~on].any()
+
+
+def test_masks_match_open3d_in_undistorted_camera(gt_export):
+    o3d = pytest.importorskip("open3d")
+    scene_dir, out, s, gt = gt_export
+    scene = Scene.open(scene_dir)
+    sd = out / "000000"
+    scene_gt = json.loads((sd / "scene_gt.json").read_text())
+    K = scene.camera.K
+    H, W = scene.camera.height, scene.camera.width
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
+    dirs = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1], np.ones_like(uu)], axis=-1)
+    rays = np.concatenate([np.zeros_like(dirs), dirs], axis=-1).astype(np.float32)
+    names = list(gt["objects"])
+    checked = 0
+    for im_id in list(scene_gt)[3::19]:
+        i = int(im_id)
+        rc = o3d.t.geometry.RaycastingScene()
+        gids = []
+        for e, n in zip(scene_gt[im_id], names):
+            R = np.array(e["cam_R_m2c"]).reshape(3, 3)
+            t = np.array(e["cam_t_m2c"]) / 1000.0
+            m = scene.model(n)
+            V = m.vertices_m @ R.T + t
+            gids.append(rc.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(m.faces.astype(np.uint32))))
+            alone = o3d.t.geometry.RaycastingScene()
+            alone.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(m.faces.astype(np.uint32)))
+            ref_full = np.isfinite(alone.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
+            full = cv2.imread(str(sd / "mask" / f"{i:06d}_{len(gids) - 1:06d}.png"), cv2.IMREAD_UNCHANGED) > 0
+            if ref_full.sum() >= 30:
+                assert (full & ref_full).sum() / (full | ref_full).sum() >= 0.99
+        gid = rc.cast_rays(o3d.core.Tensor(rays))["geometry_ids"].numpy()
+        for g, gd in enumerate(gids):
+            ref = gid == gd
+            vis = cv2.imread(str(sd / "mask_visib" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED) > 0
+            if ref.sum() < 30:
+                continue
+            iou = (vis & ref).sum() / (vis | ref).sum()
+            assert iou >= 0.99, (im_id, g, iou)
+            checked += 1
+    assert checked >= 4
+
+
+def _shift_trajectory(scene_dir, shift_us: int) -> None:
+    """Move the pose clock by shift_us (text edit of the time column, other columns untouched)."""
+    p = Path(scene_dir) / "trajectory.csv"
+    lines = p.read_text().splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        t, rest = line.split(",", 1)
+        out.append(f"{int(t) + shift_us},{rest}")
+    p.write_text("\n".join(out) + "\n")
+
+
+@pytest.mark.parametrize("shift_us,skew_ppm", [(10_000_000, 1000.0), (-10_000_000, -1000.0)])
+def test_extreme_clock_round_trips_exactly(tiny_scene_dir, tmp_path, shift_us, skew_ppm):
+    """Offsets of +-10 s and skews of +-1000 ppm reach the sidecar and the manifest exactly, and the
+    poses follow that clock."""
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    _shift_trajectory(scene_dir, shift_us)
+    gt = load_ground_truth(scene_dir)
+    offset = gt["clock"]["offset_us"] + shift_us
+    scene = Scene.open(scene_dir)
+    t0 = scene.events.t_first_us + 500_000
+    scene.corrections.set(("offset_us",), offset)
+    scene.corrections.set(("skew_ppm",), skew_ppm)
+    scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 30_000, "verified")])
+    scene.save_corrections()
+    t_ref = scene.events.t_first_us
+    scene.close()
+    out = tmp_path / "out"
+    s = export_scene(scene_dir, "bop", out, only_verified=True)
+    assert s.written == 3 and s.unlabeled == 0
+    times = json.loads((out / "000000" / "scene_times.json").read_text())
+    scene_gt = json.loads((out / "000000" / "scene_gt.json").read_text())
+    man = json.loads((out / "export_manifest.json").read_text())
+    assert man["clock"]["offset_us"] == offset and man["clock"]["skew_ppm"] == skew_ppm
+    assert type(man["clock"]["offset_us"]) is int
+    traj = read_trajectory(scene_dir)
+    scene = Scene.open(scene_dir)
+    for im_id, t in times.items():
+        assert t["offset_us"] == offset and type(t["offset_us"]) is int
+        assert t["skew_ppm"] == skew_ppm
+        T_bc = T_base_cam_at(traj, pose_time(t["t_label_us"], offset, skew_ppm, t_ref))
+        for e, n in zip(scene_gt[im_id], scene.object_names):
+            T = np.linalg.inv(T_bc) @ scene.T_base_obj(n)
+            np.testing.assert_allclose(np.array(e["cam_t_m2c"]), T[:3, 3] * 1000, atol=1e-6)
+
+
+def test_K_new_option_and_scene_id(tiny_scene_dir, tmp_path):
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    scene = Scene.open(scene_dir)
+    t0 = scene.events.t_first_us + 300_000
+    scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 10_000, "verified")])
+    K_new = scene.camera.K.copy()
+    K_new[:2, :2] *= 0.8
+    s = export_scene(scene, "bop", tmp_path / "out", only_verified=True, objects="box,flatbox",
+                     format_options={"K_new": K_new.tolist(), "scene_id": 7})
+    assert s.written == 1
+    sd = tmp_path / "out" / "000007"
+    cams = json.loads((sd / "scene_camera.json").read_text())
+    gt = json.loads((sd / "scene_gt.json").read_text())
+    (im_id,) = cams
+    assert cams[im_id]["cam_K"] == K_new.ravel().tolist()
+    assert [e["obj_id"] for e in gt[im_id]] == [1, 3]
+    assert len(list((sd / "mask").glob("*.png"))) == 2
+
+
+def test_resume_after_cancel_identical(tiny_scene_dir, tmp_path):
+    """The per-window records come from the journal on resume: the aggregate JSON files are identical."""
+    from core.events import Cancelled
+
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    scene = Scene.open(scene_dir)
+    t0 = scene.events.t_first_us + 100_000
+    scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 100_000, "verified")])
+    scene.save_corrections()
+    scene.close()
+    ref = tmp_path / "ref"
+    export_scene(scene_dir, "bop", ref, only_verified=True)
+    out = tmp_path / "out"
+    n = {"k": 0}
+    with pytest.raises(Cancelled):
+        export_scene(scene_dir, "bop", out, only_verified=True, cancel=lambda: (n.__setitem__("k", n["k"] + 1), n["k"] > 4)[1])
+    assert not (out / "000000" / "scene_gt.json").exists()
+    assert not [p for p in out.rglob(".*.tmp")]
+    s = export_scene(scene_dir, "bop", out, only_verified=True)
+    assert s.skipped_complete == 4 and s.written == 6
+    for p in ref.rglob("*"):
+        if p.is_file() and ".evpose" not in p.parts and p.name != "export_manifest.json":
+            assert p.read_bytes() == (out / p.relative_to(ref)).read_bytes(), p

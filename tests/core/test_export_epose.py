@@ -1,0 +1,404 @@
+"""E-POSE layout export: one test pins each defect of the original scripts (DESIGN section 6).
+
+Each test states the defect and fails if it were reintroduced. Oracles: cv2.projectPoints,
+scipy Slerp on trajectory.csv read independently, open3d ray casting, the event file itself.
+"""
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.io import loadmat
+from scipy.ndimage import binary_fill_holes
+from scipy.spatial.transform import Rotation, Slerp
+
+from core.corrections import ReviewMark
+from core.events import EventStore
+from core.export import export_scene
+from core.export.epose import EPOSE_CORNER_ORDER
+from core.scene import Scene
+from core.synth import load_ground_truth
+
+OFFSET_US = 20_000  # the tiny scene's true clock offset (the manifest prior is 0)
+
+
+# ----------------------------------------------------------------------------------------- helpers
+def read_trajectory(scene_dir):
+    data = np.loadtxt(Path(scene_dir) / "trajectory.csv", delimiter=",", skiprows=1, dtype=object)
+    t = data[:, 0].astype(np.int64)
+    return t, data[:, 1:4].astype(np.float64), data[:, 4:8].astype(np.float64)
+
+
+def T_base_cam_at(traj, t_pose_us: int) -> np.ndarray:
+    """Independent interpolation: linear position, scipy Slerp between the bracketing samples."""
+    t, pos, q = traj
+    i = int(np.searchsorted(t, t_pose_us, side="right") - 1)
+    i = min(max(i, 0), len(t) - 2)
+    a = float(t_pose_us - t[i]) / float(t[i + 1] - t[i])
+    assert 0.0 <= a <= 1.0
+    R = Slerp([0.0, 1.0], Rotation.from_quat(q[i:i + 2]))([a]).as_matrix()[0]
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = pos[i] + a * (pos[i + 1] - pos[i])
+    return T
+
+
+def mats(out_dir):
+    return sorted(Path(out_dir).glob("*_data.mat"))
+
+
+def o3d_label_image(camera, models, poses):
+    """Per-pixel index of the nearest object along each raw pixel-centre ray (-1: none)."""
+    o3d = pytest.importorskip("open3d")
+    xy, ok = camera.pixel_rays()
+    H, W = ok.shape
+    rays = np.concatenate([np.zeros((H, W, 3)), np.nan_to_num(xy), np.ones((H, W, 1))], axis=2).astype(np.float32)
+    rc = o3d.t.geometry.RaycastingScene()
+    gids = []
+    for m, T in zip(models, poses):
+        V = m.vertices_m @ T[:3, :3].T + T[:3, 3]
+        gids.append(rc.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(m.faces.astype(np.uint32))))
+    gid = rc.cast_rays(o3d.core.Tensor(rays))["geometry_ids"].numpy().astype(np.int64)
+    out = np.full((H, W), -1, np.int64)
+    for k, g in enumerate(gids):
+        out[gid == g] = k
+    out[~ok] = -1
+    return out
+
+
+def read_png(path):
+    return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+
+
+# ----------------------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def exported(tiny_scene_dir, tmp_path_factory):
+    """The tiny scene with the true clock offset as correction, exported once (all windows)."""
+    base = tmp_path_factory.mktemp("epose")
+    scene_dir = base / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    scene = Scene.open(scene_dir)
+    scene.corrections.set(("offset_us",), OFFSET_US)
+    scene.save_corrections()
+    scene.close()
+    out = base / "out"
+    summary = export_scene(scene_dir, "epose", out)
+    return scene_dir, out, summary
+
+
+def _limited_export(tiny_scene_dir, tmp_path, n_windows=3, **kw):
+    """Export only a few windows (through --only-verified and one verified mark)."""
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    scene = Scene.open(scene_dir)
+    t0 = scene.events.t_first_us + 300_000
+    scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + n_windows * 10_000, "verified")])
+    scene.corrections.set(("offset_us",), OFFSET_US)
+    scene.save_corrections()
+    scene.close()
+    out = tmp_path / "out"
+    s = export_scene(scene_dir, "epose", out, only_verified=True, **kw)
+    return scene_dir, out, s
+
+
+# ----------------------------------------------------------------------------------------- layout
+def test_layout_fields_and_shapes(exported):
+    scene_dir, out, s = exported
+    assert s.written == s.windows_total == len(mats(out)) == 80 and s.unlabeled == 0
+    scene = Scene.open(scene_dir)
+    k = len(scene.object_names)
+    m = loadmat(mats(out)[10])
+    assert m["pose"].shape == (4, 4 * k)
+    assert m["keypointprojections"].shape == (8, 5 * k)
+    assert m["centerInfo"].shape == (1, 2 * k)
+    assert m["cameraPose"].shape == (3, 4)
+    assert m["intrinsicMatrix"].shape == (3, 3) and np.array_equal(m["intrinsicMatrix"], scene.camera.K)
+    assert m["time"].shape == (1, 1)
+    assert m["events"].shape[1] == 4
+    assert m["cls_index"].shape == (1, k)
+    assert m["T_base_cam"].shape == (4, 4) and m["t_label_us"].dtype == np.int64
+    names = [str(np.asarray(x).ravel()[0]) for x in m["object_names"].ravel()]
+    assert names == scene.object_names
+    stem = mats(out)[10].name[:4]
+    for f in ["event_image", "mask_image_all", "mask_image_obj1", "mask_image_obj3", "segmented_image",
+              "segmented_image_obj2", "three_channel_image"]:
+        img = read_png(out / f"{stem}_{f}.png")
+        assert img.shape[:2] == (scene.camera.height, scene.camera.width)
+    assert (out / f"{stem}_bbox.txt").read_text().count("\n") == k
+    assert (out / "README.txt").read_text().count("DELIBERATE DIFFERENCES") == 1
+    assert (out / "box_box.txt").is_file() and (out / "three_channel_image_paths.txt").is_file()
+    man = json.loads((out / "export_manifest.json").read_text())
+    assert man["clock"]["offset_us"] == OFFSET_US and man["counts"]["windows_total"] == 80
+    # a time field of the original is kept: seconds since the first event, at the label time
+    t_ref = int(m["t_ref_us"][0, 0])
+    assert m["time"][0, 0] == pytest.approx((int(m["t_label_us"][0, 0]) - t_ref) * 1e-6, abs=1e-12)
+
+
+def test_single_object_names_and_bilevel_mask(tiny_scene_dir, tmp_path):
+    _, out, s = _limited_export(tiny_scene_dir, tmp_path, objects=["cylinder"])
+    assert s.written == 3
+    stem = mats(out)[0].name[:4]
+    assert (out / f"{stem}_mask_image.png").is_file() and not (out / f"{stem}_mask_image_all.png").exists()
+    assert not list(out.glob("*_obj1.png"))
+    mask = read_png(out / f"{stem}_mask_image.png")
+    assert set(np.unique(mask)) <= {0, 255}
+    m = loadmat(out / f"{stem}_data.mat")
+    assert m["pose"].shape == (4, 4) and m["keypointprojections"].shape == (8, 5)
+    assert len((out / f"{stem}_bbox.txt").read_text().split()) == 8
+
+
+# ----------------------------------------------------------------------------------------- defects
+def test_defect_corners_divided_by_first_corner_depth(exported):
+    """Original: every corner's (u, v) used the FIRST corner's depth. Each corner must be projected
+    with its own depth: (u, v) equals cv2.projectPoints of that corner's own (X, Y, Z)."""
+    scene_dir, out, _ = exported
+    scene = Scene.open(scene_dir)
+    cam = scene.camera
+    worst = 0.0
+    for path in mats(out)[::8]:
+        kp = loadmat(path)["keypointprojections"]
+        for j in range(kp.shape[1] // 5):
+            uv, xyz = kp[:, 5 * j:5 * j + 2], kp[:, 5 * j + 2:5 * j + 5]
+            ref, _ = cv2.projectPoints(xyz, np.zeros(3), np.zeros(3), cam.K, cam.dist)
+            assert np.abs(uv - ref.reshape(-1, 2)).max() < 1e-6
+            # with the first corner's depth the error is large for these boxes (tens of px)
+            wrong, _ = cv2.projectPoints(np.c_[xyz[:, :2] / xyz[:1, 2:3], np.ones(8)], np.zeros(3), np.zeros(3), cam.K,
+                                         cam.dist)
+            worst = max(worst, np.abs(wrong.reshape(-1, 2) - ref.reshape(-1, 2)).max())
+    assert worst > 2.0  # the test data can tell the two apart
+
+
+def test_defect_keypoints_undistorted_twice(exported):
+    """Original: pinhole projection followed by undistortPoints (the points were 'undistorted' although
+    they never were distorted). Keypoints must be distorted pixels of the raw camera, where the events
+    are: equal to projectPoints WITH the distortion and far from the pinhole/undistorted positions."""
+    scene_dir, out, _ = exported
+    scene = Scene.open(scene_dir)
+    cam = scene.camera
+    diff_pinhole = []
+    for path in mats(out)[::10]:
+        m = loadmat(path)
+        kp, pose = m["keypointprojections"], m["pose"]
+        for j, name in enumerate(scene.object_names):
+            T = pose[:, 4 * j:4 * j + 4]
+            corners = scene.model(name).bbox_corners(0.0)[EPOSE_CORNER_ORDER]
+            rvec, _ = cv2.Rodrigues(T[:3, :3])
+            ref, _ = cv2.projectPoints(corners, rvec, T[:3, 3], cam.K, cam.dist)
+            np.testing.assert_allclose(kp[:, 5 * j:5 * j + 2], ref.reshape(-1, 2), atol=1e-6)
+            pin, _ = cv2.projectPoints(corners, rvec, T[:3, 3], cam.K, np.zeros(5))
+            once = cv2.undistortPoints(pin.reshape(-1, 1, 2), cam.K, cam.dist, P=cam.K).reshape(-1, 2)
+            diff_pinhole.append(min(np.abs(kp[:, 5 * j:5 * j + 2] - pin.reshape(-1, 2)).max(),
+                                    np.abs(kp[:, 5 * j:5 * j + 2] - once).max()))
+    assert max(diff_pinhole) > 2.0
+
+
+def test_defect_camera_pose_from_a_fixed_frame(exported):
+    """Original: cameraPose was the second frame's pose in every file. It must be T_base_cam at each
+    window's own label time (independent Slerp of trajectory.csv at t_label + offset)."""
+    scene_dir, out, _ = exported
+    traj = read_trajectory(scene_dir)
+    poses = []
+    for path in mats(out):
+        m = loadmat(path)
+        T_ref = T_base_cam_at(traj, int(m["t_label_us"][0, 0]) + OFFSET_US)
+        np.testing.assert_allclose(m["cameraPose"], T_ref[:3, :], atol=1e-12)
+        np.testing.assert_allclose(m["T_base_cam"], T_ref, atol=1e-12)
+        poses.append(m["cameraPose"])
+    moves = [np.abs(a - b).max() for a, b in zip(poses, poses[1:])]
+    assert max(moves) > 1e-3    # the camera moves: a fixed frame would fail the check above
+
+
+def test_defect_masks_splatted_from_vertices(exported):
+    """Original: masks splatted from mesh vertices (holes, per-vertex z test). Masks must match open3d
+    ray casting of the triangles (IoU >= 0.99 per object, occlusion included) and have no holes."""
+    scene_dir, out, _ = exported
+    scene = Scene.open(scene_dir)
+    models = [scene.model(n) for n in scene.object_names]
+    checked = 0
+    for path in mats(out)[5::15]:
+        m = loadmat(path)
+        stem = path.name[:4]
+        poses = [m["pose"][:, 4 * j:4 * j + 4] for j in range(len(models))]
+        ref = o3d_label_image(scene.camera, models, poses)
+        for j in range(len(models)):
+            mask = read_png(out / f"{stem}_mask_image_obj{j + 1}.png") > 0
+            r = ref == j
+            if r.sum() < 30:
+                continue
+            iou = (mask & r).sum() / (mask | r).sum()
+            assert iou >= 0.99, (path.name, j, iou)
+            assert np.array_equal(binary_fill_holes(mask), mask), "mask has holes"
+            checked += 1
+    assert checked >= 4
+
+
+def test_defect_saturated_label_image(exported):
+    """Original: the multi-object label image (values 1..k) was written as doubles and saturated to 255.
+    mask_image_all must hold 0 and the object labels 1..k, consistent with the per-object masks."""
+    _, out, _ = exported
+    seen = set()
+    for path in mats(out)[::5]:
+        stem = path.name[:4]
+        lab = read_png(out / f"{stem}_mask_image_all.png")
+        assert lab.dtype == np.uint8 and set(np.unique(lab)) <= {0, 1, 2, 3}
+        for j in (1, 2, 3):
+            assert np.array_equal(lab == j, read_png(out / f"{stem}_mask_image_obj{j}.png") > 0)
+        seen |= set(np.unique(lab).tolist())
+    assert seen == {0, 1, 2, 3}
+
+
+def test_defect_margin_shifts_instead_of_enlarging(tiny_scene_dir, tmp_path):
+    """Original: '+1 mm' added to every coordinate (a shift). The margin must enlarge the box by 1 mm on
+    every side: same centre, each extent 2 mm larger (checked in the object frame)."""
+    scene_dir, out, s = _limited_export(tiny_scene_dir, tmp_path, margin_m=0.001)
+    assert s.written == 3
+    scene = Scene.open(scene_dir)
+    for path in mats(out):
+        m = loadmat(path)
+        for j, name in enumerate(scene.object_names):
+            T = m["pose"][:, 4 * j:4 * j + 4]
+            xyz = m["keypointprojections"][:, 5 * j + 2:5 * j + 5]
+            p_obj = (xyz - T[:3, 3]) @ T[:3, :3]
+            lo, hi = scene.model(name).bbox_min_max
+            np.testing.assert_allclose(p_obj.min(0), lo - 0.001, atol=1e-9)
+            np.testing.assert_allclose(p_obj.max(0), hi + 0.001, atol=1e-9)
+            np.testing.assert_allclose(p_obj.mean(0), (lo + hi) / 2, atol=1e-9)
+    # the object-frame box file has the enlarged corners too
+    box = np.loadtxt(out / "box_box.txt")
+    lo, hi = scene.model("box").bbox_min_max
+    np.testing.assert_allclose(box.min(1), lo - 0.001, atol=1e-6)
+    np.testing.assert_allclose(box.max(1), hi + 0.001, atol=1e-6)
+
+
+def test_defect_three_channel_accumulators_leak(exported):
+    """Original: the 3-channel accumulators were never reset, so every image held all earlier windows.
+    Each image must be a function of its own window's events: zero wherever the window has no event,
+    non-zero wherever it has one, equal to core.represent on that window alone."""
+    from core.represent import three_channel, three_channel_rgb
+
+    scene_dir, out, _ = exported
+    store = EventStore(Path(scene_dir) / "events.h5")
+    for path in mats(out)[20:60:8]:
+        m = loadmat(path)
+        t0, t1 = int(m["t_start_us"][0, 0]), int(m["t_end_us"][0, 0])
+        ev = store.window(t0, t1)
+        img = read_png(path.with_name(path.name[:4] + "_three_channel_image.png"))[..., ::-1]   # BGR -> RGB
+        has = np.zeros(img.shape[:2], bool)
+        has[ev.y, ev.x] = True
+        assert not img[~has].any()
+        assert (img[has].max(axis=1) > 0).all()
+        ref = three_channel_rgb(three_channel(ev, img.shape[1], img.shape[0], t0, t1))
+        assert np.array_equal(img, ref)
+    store.close()
+
+
+def test_defect_boundary_events_in_two_windows(exported):
+    """Original: windows [a, b] included both boundary events. The union of all windows' events must be
+    the recording, each event exactly once, in order."""
+    scene_dir, out, _ = exported
+    parts, t_ref = [], None
+    for path in mats(out):
+        m = loadmat(path)
+        t_ref = int(m["t_ref_us"][0, 0])
+        e = m["events"]
+        t = np.rint(e[:, 2] * 1e6).astype(np.int64) + t_ref
+        assert (t >= int(m["t_start_us"][0, 0])).all() and (t < int(m["t_end_us"][0, 0])).all()
+        parts.append(np.c_[e[:, 0], e[:, 1], t, (e[:, 3] > 0)].astype(np.int64))
+    got = np.concatenate(parts)
+    store = EventStore(Path(scene_dir) / "events.h5")
+    ev = store.read(0, store.n_events)
+    store.close()
+    ref = np.c_[ev.x, ev.y, ev.t, ev.p].astype(np.int64)
+    assert got.shape == ref.shape and np.array_equal(got, ref)
+    assert set(np.unique(np.concatenate([loadmat(p)["events"][:, 3] for p in mats(out)[:5]]))) <= {-1.0, 1.0}
+
+
+def test_defect_events_at_x0_or_y0_dropped(exported):
+    """Original: events with x = 0 or y = 0 were skipped in the images (MATLAB 1-based indexing). They
+    must be in the .mat events, the event image and the 3-channel image."""
+    _, out, _ = exported
+    n_border = 0
+    for path in mats(out):
+        e = loadmat(path)["events"]
+        border = (e[:, 0] == 0) | (e[:, 1] == 0)
+        if not border.any():
+            continue
+        stem = path.name[:4]
+        ev_img = read_png(out / f"{stem}_event_image.png")
+        c3 = read_png(out / f"{stem}_three_channel_image.png")
+        x, y = e[border, 0].astype(int), e[border, 1].astype(int)
+        assert (ev_img[y, x] == 255).all()
+        assert (c3[y, x].max(axis=1) > 0).all()
+        n_border += int(border.sum())
+    assert n_border > 100
+
+
+def test_defect_time_offset_in_one_product_only(exported):
+    """Original: the time offset was applied in one script only. With an offset correction every
+    product must follow the same clock: cameraPose and pose at t_label + offset, keypoints from that
+    pose, masks (open3d) from that pose, segmentation from those masks and the window's events."""
+    scene_dir, out, _ = exported
+    scene = Scene.open(scene_dir)
+    traj = read_trajectory(scene_dir)
+    models = [scene.model(n) for n in scene.object_names]
+    cam = scene.camera
+    store = EventStore(Path(scene_dir) / "events.h5")
+    for path in mats(out)[7::20]:
+        m = loadmat(path)
+        stem = path.name[:4]
+        T_bc = T_base_cam_at(traj, int(m["t_label_us"][0, 0]) + OFFSET_US)
+        np.testing.assert_allclose(m["T_base_cam"], T_bc, atol=1e-12)
+        poses = []
+        for j, name in enumerate(scene.object_names):
+            T = np.linalg.inv(T_bc) @ scene.T_base_obj(name)
+            np.testing.assert_allclose(m["pose"][:, 4 * j:4 * j + 4], T, atol=1e-9)
+            rvec, _ = cv2.Rodrigues(T[:3, :3])
+            ref, _ = cv2.projectPoints(scene.model(name).bbox_corners(0.0)[EPOSE_CORNER_ORDER], rvec, T[:3, 3], cam.K, cam.dist)
+            np.testing.assert_allclose(m["keypointprojections"][:, 5 * j:5 * j + 2], ref.reshape(-1, 2), atol=1e-6)
+            poses.append(T)
+        ref_lab = o3d_label_image(cam, models, poses)
+        lab = read_png(out / f"{stem}_mask_image_all.png").astype(np.int64) - 1
+        agree = (lab == ref_lab).mean()
+        assert agree > 0.995
+        ev = store.window(int(m["t_start_us"][0, 0]), int(m["t_end_us"][0, 0]))
+        seg = read_png(out / f"{stem}_segmented_image.png") > 0
+        expect = np.zeros_like(seg)
+        on = lab[ev.y, ev.x] >= 0
+        expect[ev.y[on], ev.x[on]] = True
+        assert np.array_equal(seg, expect)
+    store.close()
+    man = json.loads((out / "export_manifest.json").read_text())
+    assert man["clock"]["offset_us"] == OFFSET_US and man["clock"]["correction_offset_us"] == OFFSET_US
+
+
+def test_label_at_end_uses_window_end(tiny_scene_dir, tmp_path):
+    _, out, s = _limited_export(tiny_scene_dir, tmp_path, n_windows=2, label_at="end")
+    for path in mats(out):
+        m = loadmat(path)
+        assert int(m["t_label_us"][0, 0]) == int(m["t_end_us"][0, 0])
+
+
+def test_ground_truth_corrections_give_true_poses(tiny_scene_dir, tmp_path):
+    """With the ground-truth corrections the exported poses are the true ones (independent oracle)."""
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    gt = load_ground_truth(scene_dir)
+    scene = Scene.open(scene_dir)
+    t0 = scene.events.t_first_us + 400_000
+    scene.corrections.set(("offset_us",), gt["clock"]["offset_us"])
+    for n in scene.object_names:
+        T_true = np.array(gt["objects"][n]["T_base_obj"])
+        scene.corrections.set(("object", n), T_true @ np.linalg.inv(scene.manifest.object(n).T_base_obj))
+    scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 20_000, "verified")])
+    out = tmp_path / "out"
+    s = export_scene(scene, "epose", out, only_verified=True)    # a Scene object with unsaved corrections
+    assert s.written == 2
+    traj = read_trajectory(scene_dir)
+    for path in mats(out):
+        m = loadmat(path)
+        T_bc = T_base_cam_at(traj, int(m["t_label_us"][0, 0]) + gt["clock"]["offset_us"])
+        for j, n in enumerate(scene.object_names):
+            T = np.linalg.inv(T_bc) @ np.array(gt["objects"][n]["T_base_obj"])
+            np.testing.assert_allclose(m["pose"][:, 4 * j:4 * j + 4], T, atol=1e-9)
