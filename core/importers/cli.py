@@ -1,0 +1,164 @@
+"""``evpose import FORMAT SRC... --out SCENE`` (DESIGN section 5).
+
+Wire it with ``add_import_parser(subparsers)`` in ``core/cli.py``. The command prints its summary on stdout
+(one JSON document with ``--json``), assumptions/repairs/warnings and a tqdm progress bar on stderr, and exits
+with 0 on success, 2 on bad input (message ``evpose import: error: FILE: RECORD: FIELD: problem`` on stderr),
+130 when cancelled or interrupted. A failed import leaves no scene folder behind.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from . import FORMATS
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+_EPILOG = """formats and their sources:
+  epose-bag     REC.bag                         [--assets DIR --scene S --sequence Q | --camera --objects]
+  epose-export  FOLDER_WITH_NNNN_data.mat       [--assets DIR --scene S] [--objects] [--classes] [--one-based]
+  dsec          events.h5 traj.csv|txt cam_to_cam.yaml (or a DSEC sequence folder) [--events-mode]
+  rpg           FOLDER (events.txt groundtruth.txt calib.txt) or the files
+  ycbev         SEQUENCE_FOLDER (scene_gt.json) [EVENTS.int32.zst] [calib_prophesee.json] [--models DIR]
+  npz           REC.npz (x y t p + t_us position quaternion | T_base_cam [+ K dist width height])
+--objects takes name=mesh[:T_base_obj.json],... (T is a 4x4 JSON list, metres).
+Every import writes import_report.json into the scene: what was assumed, repaired, dropped."""
+
+
+def add_import_parser(subparsers) -> argparse.ArgumentParser:
+    """Register the ``import`` subcommand on an ``argparse`` subparsers object; returns its parser."""
+    s = subparsers.add_parser("import", help="turn published data into a scene folder",
+                              description="Import published event-camera data into a scene folder.",
+                              epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("format", metavar="FORMAT", choices=sorted(FORMATS), help=", ".join(FORMATS))
+    s.add_argument("src", metavar="SRC", nargs="+", help="input files or folders (never modified)")
+    s.add_argument("--out", required=True, help="scene folder to create")
+    g = s.add_argument_group("common")
+    g.add_argument("--repair", action="store_true", help="repair what can be repaired (sort, drop, project "
+                   "rotations onto SO(3)) instead of refusing; everything is listed in import_report.json")
+    g.add_argument("--force", action="store_true", help="replace an existing non-empty --out folder")
+    g.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no 'assumed'/'repaired' lines "
+                   "(warnings still go to stderr)")
+    g.add_argument("--name", help="scene name (default: the --out folder name)")
+    g.add_argument("--camera", help="calibration: evpose JSON, OpenCV JSON, DSEC/Kalibr YAML or RPG calib.txt")
+    g.add_argument("--width", type=int, help="sensor width in pixels (overrides the calibration)")
+    g.add_argument("--height", type=int, help="sensor height in pixels")
+    g.add_argument("--objects", help="name=mesh[:T_base_obj.json],... (T: 4x4 JSON, metres)")
+    g.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), help="unit of guessable times (default: guessed "
+                   "and reported)")
+    g.add_argument("--offset-us", type=int, help="clock prior offset (pose minus event time) in µs")
+    g.add_argument("--max-span-s", type=float, default=4 * 3600.0,
+                   help="refuse event times spanning more than this (corrupt stamps, wrong units); default 14400")
+    g.add_argument("--reorder-window-ms", type=float, default=100.0,
+                   help="events may arrive this much out of order (bounded stream merge); default 100")
+    g = s.add_argument_group("epose-bag / epose-export")
+    g.add_argument("--assets", help="E-POSE assets folder (camera_davis346.json, models/, scenes.json, time_shifts.csv)")
+    g.add_argument("--scene", help="scene in scenes.json, e.g. five_obj_clut (aliases accepted)")
+    g.add_argument("--sequence", help="sequence in time_shifts.csv, e.g. R_05_ml (case-insensitive)")
+    g.add_argument("--events-topic", default="/dvs/events")
+    g.add_argument("--pose-topic", default="/dvs/pose")
+    g.add_argument("--pose-time", choices=("header", "bag"), default="header",
+                   help="pose sample time: PoseStamped header stamp (default) or bag record time")
+    g.add_argument("--one-based", action="store_true", help="epose-export: event x/y are 1-based")
+    g.add_argument("--classes", help="epose-export: cls_index=name,... for the pose blocks")
+    g = s.add_argument_group("dsec")
+    g.add_argument("--events-mode", choices=("copy", "link", "reference"), default="copy",
+                   help="copy (validate and rewrite, default), link (symlink) or reference (absolute path)")
+    g.add_argument("--camera-key", default="cam0", help="camera in cam_to_cam.yaml (default cam0)")
+    g = s.add_argument_group("ycbev")
+    g.add_argument("--models", help="BOP models folder (obj_XXXXXX.ply)")
+    g.add_argument("--mesh-scale", type=float, help="mesh units to metres (default 0.001 for BOP meshes)")
+    g.add_argument("--frame-us", type=int, default=33333, help="image period in µs (default 33333)")
+    g.add_argument("--frame-index-offset", type=int, default=1,
+                   help="image j at time-origin + (j + offset) * frame-us (default 1)")
+    g.add_argument("--time-origin-us", type=int, default=0, help="added to all YCB-Ev times, µs")
+    g.add_argument("--rgb-to-event", default="auto",
+                   help="calib_stereo_c2ev.json to move poses into the event camera; 'auto' (found beside the "
+                        "sequence) or 'none'")
+    s.set_defaults(func=cmd_import)
+    return s
+
+
+def options_from_args(args):
+    from .common import ImportOptions
+
+    return ImportOptions(
+        repair=args.repair, force=args.force, name=args.name, camera=args.camera, width=args.width,
+        height=args.height, objects=args.objects, time_unit=args.time_unit, offset_us=args.offset_us,
+        reorder_window_us=int(round(args.reorder_window_ms * 1000)), max_span_s=args.max_span_s, assets=args.assets, scene=args.scene,
+        sequence=args.sequence, events_topic=args.events_topic, pose_topic=args.pose_topic, pose_time=args.pose_time,
+        one_based=args.one_based, classes=args.classes, events_mode=args.events_mode, camera_key=args.camera_key,
+        models=args.models, mesh_scale=args.mesh_scale, frame_us=args.frame_us,
+        frame_index_offset=args.frame_index_offset, time_origin_us=args.time_origin_us, rgb_to_event=args.rgb_to_event)
+
+
+def cmd_import(args) -> int:
+    from tqdm import tqdm
+
+    from ..events import Cancelled
+    from . import import_scene
+    from .common import ImportFailure
+
+    quiet = getattr(args, "quiet", False)
+
+    def log(line: str) -> None:
+        if quiet and not line.startswith("warning"):
+            return
+        (bar.write if bar is not None else print)(f"evpose import: {line}", file=sys.stderr)
+
+    bar = None if quiet else tqdm(total=1000, desc=f"import {args.format}", unit="‰", file=sys.stderr,
+                                  leave=False, bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining} {postfix}")
+
+    def progress(fraction: float, message: str = "") -> None:
+        if bar is not None:
+            bar.update(int(fraction * 1000) - bar.n)
+            if message:
+                bar.set_postfix_str(message, refresh=False)
+
+    try:
+        summary = import_scene(args.format, args.src, args.out, options_from_args(args), progress=progress, log=log)
+    except ImportFailure as exc:
+        if bar is not None:
+            bar.close()
+        print(f"evpose import: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Cancelled:
+        if bar is not None:
+            bar.close()
+        print("evpose import: cancelled (nothing written)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BaseException:
+        if bar is not None:
+            bar.close()
+        raise
+    if bar is not None:
+        bar.close()
+    if args.json:
+        sys.stdout.write(json.dumps(summary, indent=1) + "\n")
+    else:
+        n_ev = summary.get("n_events")
+        sys.stdout.write(f"wrote {summary['scene']}: {n_ev:,} events, {summary['n_poses']} poses, "
+                         f"objects: {', '.join(summary['objects']) or '(none)'} in {summary['runtime_s']:.2f} s "
+                         f"({len(summary['assumptions'])} assumptions, {len(summary['repairs'])} repairs, "
+                         f"{len(summary['warnings'])} warnings: see {summary['report']})\n")
+    return 0
+
+
+def main(argv=None) -> int:
+    """Stand-alone entry (``python -m core.importers.cli import ...``) until core/cli.py wires it."""
+    p = argparse.ArgumentParser(prog="evpose")
+    sub = p.add_subparsers(dest="command", required=True)
+    add_import_parser(sub)
+    args = p.parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("evpose import: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())
