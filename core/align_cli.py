@@ -1,0 +1,200 @@
+"""``evpose sync``, ``evpose refine`` and ``evpose score`` (DESIGN section 5).
+
+:func:`add_align_parsers` registers the three sub-commands on the ``evpose`` sub-parser set;
+each handler returns an exit status and prints exactly one JSON document on stdout with
+``--json`` (messages go to stderr). ``--apply`` runs the change through a
+:class:`core.history.History` as one undo step and saves ``corrections.json`` beside the scene.
+"""
+from __future__ import annotations
+
+import json
+import sys
+
+__all__ = ["add_align_parsers", "cmd_sync", "cmd_refine", "cmd_score"]
+
+
+def _emit(args, data: dict, text: str) -> None:
+    if getattr(args, "json", False):
+        sys.stdout.write(json.dumps(data, indent=1, default=_json_default) + "\n")
+    else:
+        sys.stdout.write(text.rstrip() + "\n")
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return None if not np.isfinite(o) else float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _open(path):
+    from .scene import Scene
+
+    return Scene.open(path)
+
+
+def _progress(args):
+    if getattr(args, "quiet", False) or getattr(args, "json", False):
+        return None
+
+    def report(fraction, message=""):
+        print(f"\r{100 * fraction:5.1f}% {message:60.60s}", end="", file=sys.stderr, flush=True)
+
+    return report
+
+
+# ---------------------------------------------------------------------------- sync
+def cmd_sync(args) -> int:
+    from .history import History
+    from .sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
+
+    scene = _open(args.scene)
+    try:
+        res = sync_scene(scene, range_ms=args.range_ms, bin_us=args.bin_us)
+        data = res.to_json(curve=args.curve)
+        corr = clock_correction(scene, res)
+        data["correction"] = None if corr is None else {"offset_us": corr[0], "skew_ppm": corr[1]}
+        if args.baseline:
+            data["baseline"] = sync_minima_baseline(scene, range_ms=args.range_ms).to_json()
+        applied = False
+        if args.apply:
+            if res.reliable:
+                history = History(scene.corrections)
+                applied = apply_sync(history, scene, res)
+                if applied:
+                    data["saved"] = str(scene.save_corrections())
+            else:
+                print(f"evpose sync: not applied: {res.reason}", file=sys.stderr)
+        data["applied"] = applied
+    finally:
+        scene.close()
+    if res.reliable:
+        skew = "not estimated (kept)" if res.skew_ppm is None else f"{res.skew_ppm:.2f} ppm"
+        text = (f"offset {res.offset_us} us, skew {skew}, confidence {res.confidence:.2f} "
+                f"(peak NCC {res.peak:.3f}, second {res.second_peak:.3f}) in {res.runtime_s:.2f} s")
+        if corr is not None:
+            text += f"\ncorrection on top of the prior: offset {corr[0]} us, skew {corr[1]:.2f} ppm"
+    else:
+        text = f"no reliable estimate: {res.reason}"
+    if args.baseline:
+        b = data["baseline"]
+        text += (f"\nbaseline (E-POSE minima matching): offset {b['offset_us']} us"
+                 if b["reliable"] else f"\nbaseline: no estimate ({b['reason']})")
+    if applied:
+        text += f"\napplied and saved to {data['saved']}"
+    _emit(args, data, text)
+    return 0
+
+
+# ---------------------------------------------------------------------------- refine
+def cmd_refine(args) -> int:
+    from .history import History
+    from .refine import RefineParams, refine_object, refine_offset
+
+    scene = _open(args.scene)
+    out = {"objects": {}}
+    lines = []
+    try:
+        names = [args.object] if args.object else scene.object_names
+        for n in names:
+            if n not in scene.object_names:
+                from .cli import CliError
+
+                raise CliError(f"{scene.manifest.path}: objects: no object named {n!r} "
+                               f"(have {', '.join(scene.object_names) or 'none'})")
+        params = RefineParams(n_windows=args.windows)
+        history = History(scene.corrections)
+        changed = False
+        clock = None
+        with history.group("refine from events"):
+            if args.offset:
+                r = refine_offset(scene, params=params, progress=_progress(args))
+                out["offset"] = r.to_json()
+                lines.append(f"offset: {'accepted' if r.accepted else 'kept'} {r.offset_us} us "
+                             f"(objective {r.objective_before:.4f} -> {r.objective_after:.4f}, {r.runtime_s:.1f} s)")
+                if r.accepted:
+                    clock = scene.clock_with(offset_us=int(r.offset_us))  # the poses are fitted on it
+                if args.apply and r.accepted:
+                    history.set(("offset_us",), int(r.offset_us) - int(scene.manifest.clock_offset_us))
+                    changed = True
+            for n in names:
+                r = refine_object(scene, n, params=params, clock=clock, progress=_progress(args))
+                out["objects"][n] = r.to_json()
+                sb = "n/a" if r.score_before is None else f"{r.score_before:.3f}"
+                sa = "n/a" if r.score_after is None else f"{r.score_after:.3f}"
+                lines.append(f"{n}: {'accepted' if r.accepted else 'kept start'}: dR {r.dR_deg:.3f} deg, dt "
+                             f"{r.dt_mm:.2f} mm; score {sb} -> {sa}; {r.n_windows} windows, {r.iterations} "
+                             f"iterations, {r.runtime_s:.1f} s" + (f" ({r.reason})" if r.reason else ""))
+                if args.apply and r.accepted:
+                    history.set(("object", n), r.dT_base)
+                    changed = True
+        if getattr(args, "quiet", False) is False and not args.json:
+            print("", file=sys.stderr)
+        out["applied"] = bool(args.apply and changed)
+        if out["applied"]:
+            out["saved"] = str(scene.save_corrections())
+            lines.append(f"applied and saved to {out['saved']}")
+    finally:
+        scene.close()
+    _emit(args, out, "\n".join(lines))
+    return 0
+
+
+# ---------------------------------------------------------------------------- score
+def cmd_score(args) -> int:
+    from .score import score_windows
+
+    scene = _open(args.scene)
+    try:
+        table = score_windows(scene, window_us=int(args.window_ms * 1000), progress=_progress(args))
+    finally:
+        scene.close()
+    if not args.json and not getattr(args, "quiet", False):
+        print("", file=sys.stderr)
+    data = table.to_json()
+    lines = [f"{len(table)} windows of {args.window_ms:g} ms scored in {table.runtime_s:.2f} s"]
+    for n, s in data["summary"].items():
+        ms = "n/a" if s["mean_score"] is None else f"{s['mean_score']:.3f}"
+        worst = "none" if s["worst_window"] is None else f"window {s['worst_window']} (t {s['worst_t_label_us']} us)"
+        lines.append(f"{n}: mean score {ms} over {s['n_valid']} valid windows; worst {worst}")
+    _emit(args, data, "\n".join(lines))
+    return 0
+
+
+# ---------------------------------------------------------------------------- parsers
+def add_align_parsers(subparsers) -> None:
+    """Register ``sync``, ``refine`` and ``score`` on an argparse sub-parser set."""
+    s = subparsers.add_parser("sync", help="estimate the clock offset/skew from the event rate vs the camera motion")
+    s.add_argument("scene")
+    s.add_argument("--json", action="store_true", help="print one JSON document")
+    s.add_argument("--apply", action="store_true", help="store a reliable estimate as corrections (one undo step) "
+                   "and save corrections.json")
+    s.add_argument("--range-ms", type=float, default=500.0, help="search range around the clock in effect (ms)")
+    s.add_argument("--bin-us", type=int, default=1000, help="event-rate bin (multiple of 1000 us)")
+    s.add_argument("--baseline", action="store_true",
+                   help="also run the original E-POSE minima-matching method and report it under 'baseline'")
+    s.add_argument("--curve", action="store_true", help="include the correlation curve in the JSON")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_sync)
+
+    s = subparsers.add_parser("refine", help="refine object poses (and the clock offset) from event/edge alignment")
+    s.add_argument("scene")
+    s.add_argument("--object", help="only this object (default: all)")
+    s.add_argument("--offset", action="store_true", help="also refine the clock offset (before the poses)")
+    s.add_argument("--windows", type=int, default=12, help="number of event windows used")
+    s.add_argument("--json", action="store_true", help="print one JSON document")
+    s.add_argument("--apply", action="store_true", help="store accepted results as corrections and save")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_refine)
+
+    s = subparsers.add_parser("score", help="alignment score of every window and object")
+    s.add_argument("scene")
+    s.add_argument("--window-ms", type=float, default=10.0, help="window length (ms)")
+    s.add_argument("--json", action="store_true", help="print one JSON document")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_score)

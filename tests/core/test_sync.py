@@ -1,0 +1,358 @@
+"""Clock synchronisation (core.sync): accuracy on rate-level and rendered synthetic scenes, the
+E-POSE minima baseline, reliability decisions and the stiff cases of DESIGN section 7."""
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import shutil
+from contextlib import redirect_stdout
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from core import sync
+from core.camera import CameraModel
+from core.events import EventArray, EventWriter, write_events_h5
+from core.history import History
+from core.scene import Scene, SceneManifest
+from core.trajectory import ClockModel, Trajectory
+
+T0_POSE = 1_700_000_000_000_000   # epoch pose clock: precision problems would show
+FX = 60.0
+
+
+def small_camera() -> CameraModel:
+    return CameraModel([[FX, 0, 31.5], [0, FX, 23.5], [0, 0, 1]], [], 64, 48)
+
+
+def stop_go_trajectory(duration_s: float, rng, speed=0.3, dwell=(0.15, 0.4), rate_hz=250, rotate=False):
+    """Camera looking down, translating (and optionally turning) through random waypoints with
+    minimum-jerk moves and stops, sampled at ``rate_hz`` on an epoch pose clock."""
+    t, pos, rot = [0.0], [np.zeros(3)], [Rotation.identity()]
+    p, r = np.zeros(3), Rotation.identity()
+    while t[-1] < duration_s:
+        d = rng.normal(size=3)
+        d[2] *= 0.3
+        d *= rng.uniform(0.05, 0.15) / np.linalg.norm(d)
+        r_next = r * Rotation.from_rotvec(rng.normal(scale=0.15, size=3)) if rotate else r
+        T = 1.875 * np.linalg.norm(d) / speed
+        for tau in np.linspace(0, 1, max(int(T * 200), 2) + 1)[1:]:
+            s = tau**3 * (10 - 15 * tau + 6 * tau**2)
+            t.append(t[-1] + T / max(int(T * 200), 2))
+            pos.append(p + s * d)
+            rot.append(r * Rotation.from_rotvec(s * (r.inv() * r_next).as_rotvec()))
+        p, r = p + d, r_next
+        t.append(t[-1] + rng.uniform(*dwell))
+        pos.append(p.copy())
+        rot.append(r)
+    t = np.asarray(t)
+    grid = np.arange(0, t[-1], 1.0 / rate_hz)
+    P = np.stack([np.interp(grid, t, np.asarray(pos)[:, i]) for i in range(3)], 1)
+    from scipy.spatial.transform import Slerp
+
+    R = Slerp(t, Rotation.concatenate(rot))(grid)
+    down = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))
+    return Trajectory(T0_POSE + np.rint(grid * 1e6).astype(np.int64), P, (down * R).as_quat())
+
+
+def rate_events(traj: Trajectory, clock: ClockModel, t0_ev: int, t1_ev: int, rng, gain=2.5, noise_per_ms=2.0,
+                depth=0.5, hot_per_ms=0.5):
+    """Events whose rate is ``gain * fx * (|v| / depth + |w|)`` per ms (``fx * ...`` in px/s) at
+    the pose time of each 1 ms bin, plus background noise and a hot pixel: a rate-level event
+    camera (~100 events/ms at 0.3 m/s)."""
+    bins = np.arange(t0_ev, t1_ev, 1000, dtype=np.int64)
+    v, w, ok = traj.speed(clock.pose_time(bins + 500))
+    lam = np.where(ok, gain * FX * (v / depth + w), 0.0) + noise_per_ms
+    n = rng.poisson(lam)
+    t = np.repeat(bins, n) + rng.integers(0, 1000, int(n.sum()))
+    hot = np.sort(rng.integers(t0_ev, t1_ev, rng.poisson(hot_per_ms * (t1_ev - t0_ev) / 1000)))
+    t = np.sort(np.concatenate([t, hot]))
+    x = rng.integers(0, 64, len(t)).astype(np.uint16)
+    y = rng.integers(0, 48, len(t)).astype(np.uint16)
+    return EventArray(x, y, t, rng.integers(0, 2, len(t)).astype(np.uint8))
+
+
+def write_scene(folder: Path, traj: Trajectory, events: EventArray | None, prior_offset_us=0, prior_skew=0.0) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    if events is None or len(events) == 0:
+        with EventWriter(folder / "events.h5"):
+            pass
+    else:
+        write_events_h5(folder / "events.h5", events)
+    traj.save_csv(folder / "trajectory.csv")
+    SceneManifest(folder / "scene.toml", folder.name, small_camera(), folder / "events.h5", folder / "trajectory.csv",
+                  "cam", None, int(prior_offset_us), float(prior_skew), []).save()
+    return folder
+
+
+def make_rate_scene(folder, duration_s, offset_us, skew_ppm, seed, *, margin_s=1.0, prior_offset_us=0, gain=10.0,
+                    rotate=False):
+    """A rate-level scene; ``gain=10`` gives ~400 events/ms at 0.3 m/s (a full-resolution DAVIS
+    is in the 10^3/ms range: the timing precision is limited by the Poisson noise of the rate)."""
+    rng = np.random.default_rng(seed)
+    traj = stop_go_trajectory(duration_s + 2 * margin_s, rng, rotate=rotate)
+    # events start margin_s after the first pose (on the pose clock)
+    t0_ev = T0_POSE + int(margin_s * 1e6) - int(offset_us)
+    clock = ClockModel(int(offset_us), float(skew_ppm), t0_ev)
+    ev = rate_events(traj, clock, t0_ev, t0_ev + int(duration_s * 1e6), rng, gain=gain)
+    return write_scene(Path(folder), traj, ev, prior_offset_us), clock
+
+
+# ---------------------------------------------------------------------------- rate-level accuracy
+@pytest.fixture(scope="module")
+def rate20(tmp_path_factory):
+    """Three 20 s rate-level scenes (skews -640, +150, +870 ppm), ~330 k events/s like a DAVIS346
+    at 0.5 m/s."""
+    base = tmp_path_factory.mktemp("sync")
+    return [make_rate_scene(base / f"rate20_{i}", 20.0, off, skew, seed=seed, gain=25.0)
+            for i, (off, skew, seed) in enumerate([(-73_200, 150.0, 11), (33_900, -640.0, 12), (-12_000, 870.0, 13)])]
+
+
+def test_offset_and_skew_on_ideal_rate(rate20):
+    off_err, skew_err = [], []
+    for folder, truth in rate20:
+        with _Open(folder) as scene:
+            res = sync.sync_scene(scene, kind="speed")
+        assert res.reliable, res.reason
+        assert res.skew_ppm is not None, res.notes
+        off_err.append(abs(res.offset_us - truth.offset_us))
+        skew_err.append(abs(res.skew_ppm - truth.skew_ppm))
+        assert 0.5 < res.confidence <= 1.0
+        assert res.runtime_s < 10
+        # the curve is for the GUI: lags are total offsets, NaN only where the overlap is too small
+        assert res.lags_us.shape == res.correlation.shape
+        i_best = int(np.nanargmax(res.correlation))
+        assert abs(res.lags_us[i_best] - res.offset_us) < 3 * abs(truth.skew_ppm) * 1e-6 * 20e6 + 2000
+        assert sum(s.used for s in res.segments) >= 4
+        assert max(off_err[-1], skew_err[-1] * 10) < 400, (off_err, skew_err, res.notes)
+    assert np.median(off_err) < 200, off_err
+    assert np.median(skew_err) < 10, skew_err
+
+
+class _Open:
+    """``with _Open(folder) as scene``: a scene closed afterwards."""
+
+    def __init__(self, folder):
+        self.scene = Scene.open(folder)
+
+    def __enter__(self):
+        return self.scene
+
+    def __exit__(self, *exc):
+        self.scene.close()
+
+
+@pytest.mark.parametrize("skew", [1000.0, -1000.0])
+def test_extreme_skew(tmp_path, skew):
+    folder, truth = make_rate_scene(tmp_path / "s", 20.0, 25_000, skew, seed=5, gain=25.0)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene, kind="speed")
+    assert res.reliable, res.reason
+    assert abs(res.skew_ppm - skew) < 25          # median over seeds ~6 ppm (bench/accuracy.py)
+    assert abs(res.offset_us - truth.offset_us) < 400
+
+
+def test_no_skew_estimate_on_short_sequences(tmp_path):
+    folder, truth = make_rate_scene(tmp_path / "s", 3.0, 41_000, 0.0, seed=2)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene, kind="speed")
+        corr = sync.clock_correction(scene, res)
+    assert res.reliable and res.skew_ppm is None
+    assert abs(res.offset_us - truth.offset_us) < 500
+    assert corr == (res.offset_us, 0.0)
+    assert any("skew not estimated" in n for n in res.notes)
+
+
+def test_offset_at_the_edge_of_the_search_range(tmp_path):
+    # 480 ms away from the prior: inside the default ±500 ms, found
+    folder, truth = make_rate_scene(tmp_path / "in", 4.0, 480_000, 0.0, seed=3, margin_s=1.5)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene, kind="speed")
+    assert res.reliable, res.reason
+    assert abs(res.offset_us - truth.offset_us) < 500
+    # 560 ms away: outside the range -> no guess, the reason says so
+    folder, truth = make_rate_scene(tmp_path / "out", 4.0, 560_000, 0.0, seed=3, margin_s=1.5)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene, kind="speed")
+        wide = sync.sync_scene(scene, kind="speed", range_ms=700)
+    assert not res.reliable and res.offset_us is None
+    assert "range" in res.reason
+    assert wide.reliable and abs(wide.offset_us - truth.offset_us) < 500
+
+
+# ---------------------------------------------------------------------------- no reliable estimate
+def test_static_camera(tmp_path):
+    rng = np.random.default_rng(0)
+    t = T0_POSE + np.arange(0, 6_000_000, 4000, dtype=np.int64)
+    traj = Trajectory(t, np.zeros((len(t), 3)), np.tile([0, 0, 0, 1.0], (len(t), 1)))
+    ev = rate_events(traj, ClockModel(0, 0, T0_POSE + 1_000_000), T0_POSE + 1_000_000, T0_POSE + 5_000_000, rng)
+    folder = write_scene(tmp_path / "static", traj, ev)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene)
+        base = sync.sync_minima_baseline(scene)
+    assert not res.reliable and res.offset_us is None and res.skew_ppm is None
+    assert "static" in res.reason
+    assert res.confidence == 0.0
+    assert not base.reliable
+
+
+def test_periodic_motion_is_ambiguous(tmp_path):
+    rng = np.random.default_rng(1)
+    t_s = np.arange(0, 8.0, 0.004)
+    P = np.zeros((len(t_s), 3))
+    P[:, 0] = 0.05 * np.sin(2 * np.pi * t_s / 0.36)      # period 360 ms: speed repeats every 180 ms
+    traj = Trajectory(T0_POSE + np.rint(t_s * 1e6).astype(np.int64), P, np.tile([1.0, 0, 0, 0], (len(t_s), 1)))
+    clock = ClockModel(-37_000, 0.0, T0_POSE + 1_500_000)
+    ev = rate_events(traj, clock, clock.t_ref_us, clock.t_ref_us + 5_000_000, rng)
+    folder = write_scene(tmp_path / "periodic", traj, ev)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene)
+    assert not res.reliable and res.offset_us is None
+    assert "ambiguous" in res.reason or "periodic" in res.reason
+    assert len(res.correlation) > 0   # the curve is still returned for display
+
+
+def test_empty_single_event_constant_rate_and_short(tmp_path):
+    rng = np.random.default_rng(2)
+    traj = stop_go_trajectory(5.0, rng)
+    t_ref = T0_POSE + 1_000_000
+    cases = {
+        "empty": None,
+        "single": EventArray([3], [4], [t_ref], [1]),
+        # exactly 5 events in every ms for 3 s
+        "constant": EventArray(np.zeros(15000, np.uint16), np.zeros(15000, np.uint16),
+                               t_ref + np.repeat(np.arange(3000) * 1000, 5) + np.tile(np.arange(5) * 100, 3000),
+                               np.zeros(15000, np.uint8)),
+        "short": rate_events(traj, ClockModel(0, 0, t_ref), t_ref, t_ref + 150_000, rng),
+    }
+    expect = {"empty": "no events", "single": "too short", "constant": "constant", "short": "too short"}
+    for name, ev in cases.items():
+        folder = write_scene(tmp_path / name, traj, ev)
+        with _Open(folder) as scene:
+            res = sync.sync_scene(scene)
+            base = sync.sync_minima_baseline(scene)
+        assert not res.reliable and res.offset_us is None, name
+        assert expect[name] in res.reason, (name, res.reason)
+        assert not base.reliable, name
+        json.dumps(res.to_json(curve=True))   # serialisable, NaN mapped to null
+
+
+def test_estimate_clock_rejects_bad_arguments():
+    proxy = sync.MotionProxy(0, np.array([0.0, 1e6]), np.array([1.0]))
+    with pytest.raises(ValueError):
+        sync.estimate_clock([0, 1000], [1], 1000, proxy, ClockModel())
+    with pytest.raises(ValueError):
+        sync.estimate_clock([0], [1], 0, proxy, ClockModel())
+
+
+def test_180_degree_turn_between_samples():
+    t = T0_POSE + np.array([0, 4000, 8000, 12000, 16000], np.int64)
+    q = Rotation.from_euler("z", np.array([0, 0, 180, 0, 90.0])[:, None], degrees=True).as_quat()
+    traj = Trajectory(t, np.zeros((5, 3)), q)
+    proxy = sync.motion_proxy(traj, FX, rays_xy=np.array([[0.0, 0.0], [0.3, -0.2]]))
+    assert np.all(np.isfinite(proxy.value))
+    w = np.pi / 4e-3   # 180 degrees in 4 ms: the relative rotation's angle is pi, never NaN
+    assert 0 < proxy.value[1] < 2 * FX * w
+    speed = sync.motion_proxy(traj, FX, kind="speed")
+    assert speed.value[1] == pytest.approx(FX * w)
+    m, ok = proxy.mean_over(np.array([0.0, 2000.0]), np.array([16000.0, 20000.0]))
+    assert ok.tolist() == [True, False] and np.isfinite(m).all()
+
+
+def test_masked_ncc_matches_direct_computation():
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=50)
+    b = rng.normal(size=70)
+    ma = rng.random(50) > 0.1
+    mb = rng.random(70) > 0.2
+    ncc, n = sync._masked_ncc(a, ma, b, mb, 5)
+    for j in range(21):
+        m = ma & mb[j:j + 50]
+        x, y = a[m], b[j:j + 50][m]
+        ref = np.corrcoef(x, y)[0, 1]
+        assert ncc[j] == pytest.approx(ref, abs=1e-9)
+        assert n[j] == m.sum()
+
+
+# ---------------------------------------------------------------------------- rendered scene + baseline + CLI
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """A low-resolution (87x65) rendered scene: for synchronisation only the event rate matters."""
+    from core.synth import SynthConfig, generate
+
+    cam = CameraModel.davis346()
+    s = 87 / 346
+    K = cam.K.copy()
+    K[:2] *= s
+    K[0, 2] = (cam.K[0, 2] + 0.5) * s - 0.5
+    K[1, 2] = (cam.K[1, 2] + 0.5) * s - 0.5
+    out = tmp_path_factory.mktemp("sync") / "rendered"
+    # -116.5 ms: the largest shift of the published E-POSE table (block, r_01_gl)
+    generate(out, SynthConfig(objects=("box", "flatbox"), trajectory="B", speed_mps=0.5, duration_s=5.0,
+                              offset_us=-116_500, seed=4, max_px_per_frame=2,
+                              camera={"width": 87, "height": 65, "K": K.tolist(), "dist": cam.dist.tolist()}))
+    return out
+
+
+def test_rendered_scene_offset_and_baseline(rendered):
+    from core.synth import load_ground_truth
+
+    true_off = load_ground_truth(rendered)["clock"]["offset_us"]
+    with _Open(rendered) as scene:
+        res = sync.sync_scene(scene)
+        base = sync.sync_minima_baseline(scene)
+    assert res.reliable, res.reason
+    # the simulated event rate lags the image motion by ~1 ms (see core.sync's docstring)
+    assert abs(res.offset_us - true_off) < 3000
+    assert res.skew_ppm is None        # 5 s: too short for a skew
+    assert base.method == "minima-baseline"
+    if base.reliable:
+        assert abs(base.offset_us - true_off) > abs(res.offset_us - true_off)
+
+
+def test_apply_through_history_and_undo(rendered, tmp_path):
+    folder = tmp_path / "scene"
+    shutil.copytree(rendered, folder)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene)
+        h = History(scene.corrections)
+        assert sync.apply_sync(h, scene, res)
+        assert scene.clock.offset_us == res.offset_us
+        assert len(h) == 1 and h.undo_text == "clock sync"
+        h.undo()
+        assert scene.clock.offset_us == scene.manifest.clock_offset_us
+        bad = sync.SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
+        assert not sync.apply_sync(h, scene, bad) and len(h) == 1 and h.index == 0
+
+
+def _cli(argv) -> tuple[int, str]:
+    from core.align_cli import add_align_parsers
+
+    p = argparse.ArgumentParser(prog="evpose")
+    add_align_parsers(p.add_subparsers(dest="command", required=True))
+    args = p.parse_args(argv)
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        rc = args.func(args)
+    return rc, buf.getvalue()
+
+
+def test_cli_sync_json_apply_baseline(rendered, tmp_path):
+    folder = tmp_path / "scene"
+    shutil.copytree(rendered, folder)
+    rc, out = _cli(["sync", str(folder), "--json", "--apply", "--baseline", "--range-ms", "400"])
+    assert rc == 0
+    data = json.loads(out)       # exactly one JSON document
+    for key in ("offset_us", "skew_ppm", "confidence", "reliable", "runtime_s", "baseline", "correction"):
+        assert key in data
+    assert data["reliable"] and data["applied"]
+    with _Open(folder) as scene:
+        assert scene.corrections.offset_us == data["correction"]["offset_us"]
+        assert scene.clock.offset_us == data["offset_us"]
+    rc, text = _cli(["sync", str(folder)])
+    assert rc == 0 and "offset" in text
+    assert math.isfinite(data["confidence"])
