@@ -67,7 +67,11 @@ class CameraModel:
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise CameraError(f"{source}: K: focal lengths must be positive (fx={K[0, 0]}, fy={K[1, 1]})")
         if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
-            raise CameraError(f"{source}: K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+            raise CameraError(f"{source}: K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+        if K[0, 1] != 0:
+            # OpenCV's distortion model has no skew term: projecting with it would silently drop it
+            raise CameraError(f"{source}: K: skew K[0][1] = {K[0, 1]} is not supported by the OpenCV "
+                              "distortion model; calibrate with zero skew")
         try:
             dist = np.asarray(dist, dtype=np.float64).ravel()
         except (TypeError, ValueError):

@@ -28,6 +28,8 @@ import h5py
 import hdf5plugin  # noqa: F401  (registers the Blosc filter so that readers can decompress)
 import numpy as np
 
+from .fileio import temp_path_for
+
 __all__ = ["EventFileError", "Cancelled", "EventArray", "EventStore", "EventWriter", "write_events_h5"]
 
 # Events per HDF5 chunk, chosen by measurement (bursty synthetic 640x480 data, uint32 t, Blosc-LZ4, 2 cores;
@@ -196,7 +198,7 @@ def _scan_index(path, dset, base_rel: int, *, builder=None, start: int = 0, prog
 
 def _write_npz_atomic(target: Path, **arrays) -> None:
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
+    tmp = temp_path_for(target)
     try:
         with open(tmp, "wb") as f:
             np.savez(f, **arrays)
@@ -550,7 +552,7 @@ class EventWriter:
         if compression not in comp:
             raise ValueError(f"EventWriter: compression must be 'blosc-lz4', 'gzip' or None, got {compression!r}")
         self.path = Path(path)
-        self._tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self._tmp = temp_path_for(self.path)
         self._u32 = time_dtype == "uint32"
         self._offset = None if t_offset_us is None else operator.index(t_offset_us)
         self._progress, self._cancel, self._expected = progress, cancel, expected_events

@@ -12,6 +12,13 @@ import tempfile
 from pathlib import Path
 
 
+def _default_mode() -> int:
+    """The permission bits a plain ``open(path, "w")`` would give (0o666 minus the umask)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def temp_path_for(path: Path) -> Path:
     """A unique hidden temporary name beside ``path`` (same filesystem, so rename is atomic)."""
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -20,7 +27,7 @@ def temp_path_for(path: Path) -> Path:
 
 
 def fsync_dir(directory: Path) -> None:
-    """Flush a directory entry to disk (no-op where directories cannot be opened)."""
+    """Flush a directory entry (or a file's data) to disk; a no-op where it cannot be opened."""
     try:
         fd = os.open(directory, os.O_RDONLY)
     except OSError:
@@ -47,6 +54,13 @@ def atomic_path(path):
         yield tmp
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
+        # mkstemp creates 0600 files; keep the mode of the file replaced, or the umask default
+        try:
+            mode = path.stat().st_mode & 0o777
+        except OSError:
+            mode = _default_mode()
+        with contextlib.suppress(OSError):
+            os.chmod(tmp, mode)
         os.replace(tmp, path)
         fsync_dir(path.parent)
     except BaseException:

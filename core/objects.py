@@ -146,17 +146,35 @@ class ObjectModel:
         return len(self.faces)
 
 
-def box_model(name: str, size_m=(0.1, 0.06, 0.16), **kwargs) -> ObjectModel:
+#: Procedural meshes are split until no edge is longer than this: same surface, but triangles
+#: small on screen, which the rasteriser handles fastest (a 12-triangle box seen from 0.3 m has
+#: triangles of ~10^4 pixels whose distortion bound inflates their candidate boxes; ~40 % faster
+#: scene synthesis at full DAVIS346 resolution).
+PROCEDURAL_MAX_EDGE_M = 0.02
+
+
+def _subdivided(mesh, max_edge_m: float | None):
+    import trimesh
+
+    if not max_edge_m:
+        return mesh
+    v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, float(max_edge_m))
+    return trimesh.Trimesh(v, f, process=True)
+
+
+def box_model(name: str, size_m=(0.1, 0.06, 0.16), max_edge_m: float | None = PROCEDURAL_MAX_EDGE_M,
+              **kwargs) -> ObjectModel:
     """A procedural box centred at the origin (sizes along x, y, z in metres)."""
     import trimesh
 
-    return ObjectModel.from_trimesh(trimesh.creation.box(extents=size_m), name, source=f"box{tuple(size_m)}", **kwargs)
+    mesh = _subdivided(trimesh.creation.box(extents=size_m), max_edge_m)
+    return ObjectModel.from_trimesh(mesh, name, source=f"box{tuple(size_m)}", **kwargs)
 
 
 def cylinder_model(name: str, radius_m: float = 0.04, height_m: float = 0.12, sections: int = 48,
-                   **kwargs) -> ObjectModel:
+                   max_edge_m: float | None = PROCEDURAL_MAX_EDGE_M, **kwargs) -> ObjectModel:
     """A procedural closed cylinder along z, centred at the origin."""
     import trimesh
 
-    mesh = trimesh.creation.cylinder(radius=radius_m, height=height_m, sections=sections)
+    mesh = _subdivided(trimesh.creation.cylinder(radius=radius_m, height=height_m, sections=sections), max_edge_m)
     return ObjectModel.from_trimesh(mesh, name, source=f"cylinder(r={radius_m}, h={height_m})", **kwargs)

@@ -11,6 +11,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from functools import cached_property
+import os
 from pathlib import Path
 
 import numpy as np
@@ -94,7 +95,7 @@ class SceneManifest:
     def to_toml_dict(self) -> dict:
         def rel(p: Path) -> str:
             try:
-                return Path(p).resolve().relative_to(self.root.resolve()).as_posix()
+                return Path(os.path.abspath(p)).relative_to(os.path.abspath(self.root)).as_posix()
             except ValueError:
                 return str(p)
 

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -355,9 +357,8 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
     renderer = SceneRenderer(camera, models, T_true, rng)
     sim = EventSimulator(camera.width, camera.height, cfg.sensor, rng)
 
-    tmp = out_dir.with_name(f".{out_dir.name}.synth-tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".synth-tmp", dir=out_dir.parent))
     (tmp / "models").mkdir(parents=True)
     try:
         T0, _ = traj.at_event_time(np.array([e0]), clock_true)
@@ -428,6 +429,9 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
                       "frames_rendered": int(is_render.sum()), "runtime_s": time.perf_counter() - t_start},
         }
         (tmp / GROUND_TRUTH_FILENAME).write_text(json.dumps(summary, indent=1) + "\n")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)   # mkdtemp makes a private 0700 folder
         if out_dir.exists():
             shutil.rmtree(out_dir)
         tmp.rename(out_dir)
