@@ -11,7 +11,7 @@ from PySide6 import QtCore, QtWidgets
 from core.cli import _input_errors
 from core.session import Session
 
-from .workers import Job
+from .workers import Job, progress_dialog
 
 
 class ExportDialog(QtWidgets.QDialog):
@@ -177,13 +177,7 @@ class Controller(QtCore.QObject):
         s = self.window.session
         snapshot = s.scene.with_corrections(s.scene.corrections.copy())
         job = Job(lambda progress, cancel: export_scene(snapshot, progress=progress, cancel=cancel, **opts))
-        dlg = QtWidgets.QProgressDialog(f"Exporting {s.scene.name} ({opts['fmt']})…", "Cancel", 0, 1000, self.window)
-        dlg.setWindowTitle("Export")
-        dlg.setMinimumDuration(300)
-        dlg.setAutoClose(False)
-        dlg.setAutoReset(False)
-        dlg.canceled.connect(job.cancel)
-        job.signals.progress.connect(lambda f, m: (dlg.setValue(int(f * 1000)), dlg.setLabelText(m or dlg.labelText())))
+        dlg = progress_dialog(self.window, "Export", f"Exporting {s.scene.name} ({opts['fmt']})…", job)
 
         def finished(summary):
             dlg.close()

@@ -22,16 +22,21 @@ def _install_excepthook(window) -> None:
     sys.excepthook = hook
 
 
-def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_after: float | None = None) -> int:
+def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_after: float | None = None,
+            start_busiest: bool = False) -> int:
     """Open the main window (on ``scene`` if given) and run the event loop.
 
     With ``screenshot``, the window is rendered to that PNG once the first frame is drawn and at
     least ``quit_after`` seconds (default 3) have passed, then the app quits: this works under
-    any X display, including Xvfb.
+    any X display, including Xvfb. ``start_busiest`` opens at the window with the most events
+    (the demo uses it so the first view shows motion).
     """
     from PySide6 import QtCore, QtGui, QtWidgets
 
     from .main_window import MainWindow
+    from .qt_compat import guard_pyside_refcount_leak
+
+    guard_pyside_refcount_leak()
 
     QtCore.QCoreApplication.setOrganizationName("evpose")
     QtCore.QCoreApplication.setApplicationName("evpose")
@@ -45,16 +50,19 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     _install_excepthook(window)
     window.show()
     if scene:
-        if window.controller.open_scene(scene) is None and unattended:
+        session = window.controller.open_scene(scene)
+        if session is None and unattended:
             sys.stderr.write(f"evpose gui: {window.last_error}\n")
             return 2
+        if session is not None and start_busiest:
+            session.set_time(session.busiest_time())
     if unattended:
         wait_s = 3.0 if quit_after is None else float(quit_after)
         t_start = QtCore.QElapsedTimer()
         t_start.start()
 
         def tick():
-            drawn = window.session is None or window.frame is not None
+            drawn = window.session is None or (window.frame is not None and window.spacetime_drawn())
             if t_start.elapsed() >= wait_s * 1000 and drawn:
                 if screenshot:
                     path = window.save_screenshot(screenshot)

@@ -14,6 +14,7 @@ from widgets.object_list import ObjectList
 from widgets.review_panel import ReviewPanel
 
 from . import actions as A
+from .align import AlignController
 from .controller import Controller
 from .settings import Settings
 from .undo_bridge import UndoBridge
@@ -38,11 +39,14 @@ class MainWindow(QtWidgets.QMainWindow):
         self.settings = settings or Settings()
         self.session: Session | None = None
         self.controller = Controller(self)
+        self.align = AlignController(self)
+        self._spacetime_stale = False
         self.auto_answer: dict = {}
         self.last_error: str | None = None
         self.last_export = None
         self.frame: FrameData | None = None
         self._shown_serial = {"frame": 0, "spacetime": 0}
+        self._submitted_serial = {"frame": 0, "spacetime": 0}
         self._views: list[QtWidgets.QWidget] = []
         self._docks: list[QtWidgets.QDockWidget] = []
         self._unsubscribe = None
@@ -121,6 +125,12 @@ class MainWindow(QtWidgets.QMainWindow):
             a[name].setCheckable(True)
             a[name].toggled.connect(lambda on, k=kind: self.session and self.session.set_overlay(k, on))
         a["reset_zoom"].triggered.connect(lambda: self.frame_view and self.frame_view.reset_zoom())
+        for name, text, slot in (("auto_sync", "Automatic clock &sync…", self._auto_sync),
+                                 ("refine_selected", "&Refine selected object from events…", lambda: self._refine("")),
+                                 ("score_all", "S&core all windows (timeline)", self.align.score_all)):
+            act = QtGui.QAction(text, self)
+            act.triggered.connect(slot)
+            self.actions_by_name[name] = act
         self.representation_group = QtGui.QActionGroup(self)
         self.representation_actions = {}
         for name in REPRESENTATION_NAMES:
@@ -159,6 +169,9 @@ class MainWindow(QtWidgets.QMainWindow):
             m.addAction(a[name])
         m = self.menuBar().addMenu("&Review")
         for name in ("mark_verified", "mark_rejected", "mark_flagged"):
+            m.addAction(a[name])
+        m = self.menuBar().addMenu("&Tools")
+        for name in ("auto_sync", "refine_selected", "score_all"):
             m.addAction(a[name])
         m = self.menuBar().addMenu("&Help")
         m.addAction(a["help"])
@@ -206,16 +219,23 @@ class MainWindow(QtWidgets.QMainWindow):
         right = QtWidgets.QWidget()
         rl = QtWidgets.QVBoxLayout(right)
         rl.setContentsMargins(0, 0, 0, 0)
-        rl.addWidget(self.objects, 1)
-        rl.addWidget(self.panel, 0)
+        self.objects.setMinimumHeight(60 + 26 * min(len(session.object_names), 6))
+        rl.addWidget(self.objects, 0)
+        rl.addWidget(self.panel, 1)
         self._add_dock("Objects and corrections", right, QtCore.Qt.RightDockWidgetArea, "dock_corrections")
-        self._add_dock("Review", self.reviews, QtCore.Qt.RightDockWidgetArea, "dock_review")
+        self._add_dock("Review", self.reviews, QtCore.Qt.LeftDockWidgetArea, "dock_review")
         self._add_dock("Space-time (x, y, t)", self.spacetime, QtCore.Qt.LeftDockWidgetArea, "dock_spacetime")
+        # review marks under the space-time view: the right column keeps its height for corrections
+        self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
         self._add_dock("Timeline", self.timeline, QtCore.Qt.BottomDockWidgetArea, "dock_timeline")
-        self.resizeDocks([self._docks[2]], [520], QtCore.Qt.Horizontal)
-        self.resizeDocks([self._docks[0]], [380], QtCore.Qt.Horizontal)
-        self.resizeDocks([self._docks[3]], [230], QtCore.Qt.Vertical)
-        self.settings.restore_window(self)
+        self._docks[2].visibilityChanged.connect(self._spacetime_visibility)
+        # the timeline spans the full width under the side docks
+        self.setCorner(QtCore.Qt.BottomLeftCorner, QtCore.Qt.BottomDockWidgetArea)
+        self.setCorner(QtCore.Qt.BottomRightCorner, QtCore.Qt.BottomDockWidgetArea)
+        self.timeline.setMinimumHeight(150)
+        if not self.settings.restore_window(self):
+            self._default_dock_sizes()
+            QtCore.QTimer.singleShot(0, self._default_dock_sizes)   # again once laid out
         self.undo_bridge = UndoBridge(session.history, self.actions_by_name["undo"], self.actions_by_name["redo"], self)
         self._unsubscribe = session.subscribe(self._on_session)
         self._set_document_actions_enabled(True)
@@ -224,6 +244,17 @@ class MainWindow(QtWidgets.QMainWindow):
         self.undo_bridge.sync()
         self.request_frame()
         self.request_spacetime()
+
+    def _default_dock_sizes(self) -> None:
+        if len(self._docks) < 4:
+            return
+        self.resizeDocks([self._docks[2], self._docks[0]], [520, 400], QtCore.Qt.Horizontal)
+        self.resizeDocks([self._docks[3], self._docks[1]], [240, 150], QtCore.Qt.Vertical)
+
+    def ensure_timeline_height(self, px: int) -> None:
+        dock = self._docks[3] if len(self._docks) > 3 else None
+        if dock is not None and not dock.isFloating() and dock.height() < px:
+            self.resizeDocks([dock], [px], QtCore.Qt.Vertical)
 
     def _add_dock(self, title: str, widget: QtWidgets.QWidget, area, name: str) -> None:
         dock = QtWidgets.QDockWidget(title, self)
@@ -237,17 +268,30 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.session is None:
             return
         self.settings.save_window(self)
+        self.align.cancel_all()
+        self._spacetime_timer.stop()
         if self._unsubscribe:
             self._unsubscribe()
+            self._unsubscribe = None
         if self.undo_bridge:
             self.undo_bridge.detach()
+            self.undo_bridge = None
+        if self.timeline is not None:
+            self.timeline.stop()
+        if self.spacetime is not None:
+            self.spacetime.shutdown()
+        # late worker results for the old session must find no views (they are being deleted)
+        self.frame_view = self.panel = self.reviews = self.timeline = self.spacetime = self.objects = None
+        self.frame = None
+        # everything submitted so far belongs to the old session: drop it when it arrives
+        floor = max(max(self._shown_serial.values()), max(self._submitted_serial.values()))
+        self._shown_serial = {"frame": floor, "spacetime": floor}
+        self._submitted_serial = {"frame": floor, "spacetime": floor}
         for dock in self._docks:
             self.docks_menu.removeAction(dock.toggleViewAction())
             self.removeDockWidget(dock)
             dock.deleteLater()
         self._docks.clear()
-        if self.timeline is not None and hasattr(self.timeline, "stop"):
-            self.timeline.stop()
         self.session.close()
         self.session = None
         self.setCentralWidget(QtWidgets.QLabel())
@@ -271,25 +315,52 @@ class MainWindow(QtWidgets.QMainWindow):
     # ------------------------------------------------------------------ frames
     def request_frame(self) -> None:
         if self.session is not None:
-            self.frame_worker.submit(self.session.request())
+            req = self.session.request()
+            self._submitted_serial["frame"] = req.serial
+            self.frame_worker.submit(req)
 
     def request_spacetime(self) -> None:
+        """Recompute the space-time view, or mark it stale while its dock is closed (it is
+        computed when the dock is shown again: a hidden view costs nothing)."""
         dock = self._docks[2] if len(self._docks) > 2 else None
-        if self.session is not None and dock is not None and not dock.isHidden():
-            self.spacetime_worker.submit(self.session.request())
+        if self.session is None or dock is None:
+            return
+        if dock.isHidden():
+            self._spacetime_stale = True
+            return
+        self._spacetime_stale = False
+        req = self.session.request()
+        self._submitted_serial["spacetime"] = req.serial
+        self.spacetime_worker.submit(req)
+
+    def _spacetime_visibility(self, visible: bool) -> None:
+        if visible and self._spacetime_stale:
+            self.request_spacetime()
 
     def _frame_ready(self, data: FrameData, serial: int) -> None:
-        if self.frame_view is None or serial < self._shown_serial["frame"]:
+        if self.frame_view is None or serial <= self._shown_serial["frame"]:
             return  # stale
         self._shown_serial["frame"] = serial
         self.frame = data
         self.frame_view.set_frame(data)
+        if self.objects is not None:
+            self.objects.set_scores(data.scores)
 
     def _spacetime_ready(self, data: SpaceTimeData, serial: int) -> None:
-        if self.spacetime is None or serial < self._shown_serial["spacetime"]:
+        if self.spacetime is None or serial <= self._shown_serial["spacetime"]:
             return
         self._shown_serial["spacetime"] = serial
         self.spacetime.set_data(data)
+
+    def frame_up_to_date(self) -> bool:
+        """True when the frame view shows the most recently requested state."""
+        return self.frame is not None and self._shown_serial["frame"] >= self._submitted_serial["frame"]
+
+    def spacetime_drawn(self) -> bool:
+        """True once the space-time view shows data for the current view (or is hidden)."""
+        dock = self._docks[2] if len(self._docks) > 2 else None
+        return dock is None or dock.isHidden() or (
+            self._submitted_serial["spacetime"] > 0 and self._shown_serial["spacetime"] >= self._submitted_serial["spacetime"])
 
     def _worker_failed(self, message: str, serial: int) -> None:
         self.statusBar().showMessage("could not compute the view: " + message.strip().splitlines()[-1], 10_000)
@@ -311,10 +382,12 @@ class MainWindow(QtWidgets.QMainWindow):
         s.select(names[i % len(names)])
 
     def _auto_sync(self) -> None:
-        self.statusBar().showMessage("automatic sync is not available in this build", 5000)
+        self.align.auto_sync()
 
     def _refine(self, name: str) -> None:
-        self.statusBar().showMessage("refinement is not available in this build", 5000)
+        if not name and self.session is not None:
+            name = self.session.view.selected or (self.session.object_names[0] if self.session.object_names else "")
+        self.align.refine(name)
 
     # ------------------------------------------------------------------ screenshots
     def save_screenshot(self, path) -> Path:

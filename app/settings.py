@@ -31,13 +31,13 @@ class Settings:
         self.qs.setValue("window/geometry", window.saveGeometry())
         self.qs.setValue("window/state", window.saveState())
 
-    def restore_window(self, window) -> None:
+    def restore_window(self, window) -> bool:
+        """Restore geometry and dock layout; True if a saved dock layout was applied."""
         geo = self.qs.value("window/geometry")
         if geo is not None:
             window.restoreGeometry(geo)
         state = self.qs.value("window/state")
-        if state is not None:
-            window.restoreState(state)
+        return bool(state is not None and window.restoreState(state))
 
     def last_export_dir(self) -> str:
         return str(self.qs.value("export/last_dir", ""))

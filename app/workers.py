@@ -11,7 +11,7 @@ import threading
 import traceback
 from typing import Any, Callable
 
-from PySide6 import QtCore
+from PySide6 import QtCore, QtWidgets
 
 
 class LatestWorker(QtCore.QObject):
@@ -106,3 +106,16 @@ class Job(QtCore.QRunnable):
     def start(self) -> "Job":
         QtCore.QThreadPool.globalInstance().start(self)
         return self
+
+
+def progress_dialog(parent, title: str, label: str, job: Job, min_duration_ms: int = 300) -> QtWidgets.QProgressDialog:
+    """A progress dialog driven by ``job``'s progress signal whose Cancel cancels the job (shown
+    only when the job runs longer than ``min_duration_ms``); the caller closes it when done."""
+    dlg = QtWidgets.QProgressDialog(label, "Cancel", 0, 1000, parent)
+    dlg.setWindowTitle(title)
+    dlg.setMinimumDuration(min_duration_ms)
+    dlg.setAutoClose(False)
+    dlg.setAutoReset(False)
+    dlg.canceled.connect(job.cancel)
+    job.signals.progress.connect(lambda f, m: (dlg.setValue(int(f * 1000)), dlg.setLabelText(m or dlg.labelText())))
+    return dlg

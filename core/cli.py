@@ -29,9 +29,11 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from .objects import ObjectModelError
     from .scene import SceneError
     from .trajectory import TrajectoryError
+    from .export.common import ExportError
+    from .importers.common import ImportFailure
 
     return (CliError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
-            ObjectModelError, GeometryError, FileNotFoundError, FileExistsError)
+            ObjectModelError, GeometryError, ExportError, ImportFailure, FileNotFoundError, FileExistsError)
 
 
 def _progress_bar(desc: str, enabled: bool = True):
@@ -175,15 +177,16 @@ def cmd_demo(args) -> int:
     if args.no_gui:
         print(f"demo scene ready: {out}", file=sys.stderr)
         return cmd_info(argparse.Namespace(scene=str(out), json=False))
-    return _run_gui(str(out), args)
+    return _run_gui(str(out), args, start_busiest=True)
 
 
-def _run_gui(scene: str | None, args) -> int:
+def _run_gui(scene: str | None, args, start_busiest: bool = False) -> int:
     try:
         from app.main import run_gui
     except ImportError as exc:
         raise CliError(f"the desktop app cannot start: {exc}") from None
-    return run_gui(scene, screenshot=getattr(args, "screenshot", None), quit_after=getattr(args, "quit_after", None))
+    return run_gui(scene, screenshot=getattr(args, "screenshot", None), quit_after=getattr(args, "quit_after", None),
+                   start_busiest=start_busiest)
 
 
 def cmd_gui(args) -> int:
@@ -235,6 +238,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--screenshot", help="save a screenshot of the main window to this PNG")
     s.add_argument("--quit-after", type=float, help="quit the app after this many seconds")
     s.set_defaults(func=cmd_gui)
+
+    from .align_cli import add_align_parsers
+    from .export.cli import add_export_parser
+    from .importers.cli import add_import_parser
+
+    add_export_parser(sub)
+    add_import_parser(sub)
+    add_align_parsers(sub)
     return p
 
 

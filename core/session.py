@@ -11,6 +11,7 @@ in a worker thread while the user keeps editing; the snapshot carries a copy of 
 """
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import time
@@ -33,6 +34,7 @@ from .scene import Scene
 OVERLAY_KINDS = ("mask", "contour", "box", "axes", "center")
 REPRESENTATION_NAMES = ("polarity", "spike", "three_channel", "time_surface", "counts", "voxel")
 JOURNAL_NAME = ".corrections.autosave.json"
+_SERIALS = itertools.count(1)
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,7 @@ class FrameData:
     mask_rgba: np.ndarray | None         # (H, W, 4) uint8 composite of visible masks
     overlays: list[ObjectOverlay] = field(default_factory=list)
     inside_fraction: float | None = None  # share of the window's events on the (dilated) masks
+    scores: dict = field(default_factory=dict)  # name -> core.score alignment score (None: undefined)
     compute_ms: float = 0.0
 
 
@@ -98,7 +101,6 @@ class Session:
         t0, t1 = self.time_range
         self.view = ViewState(t_us=min(t0 + ViewState.window_us // 2, t1))
         self._listeners: list[Callable[[str], None]] = []
-        self._serial = 0
         scene.corrections.subscribe(self._doc_changed)
         self.history.subscribe(lambda h: self._emit("history"))
 
@@ -151,6 +153,16 @@ class Session:
     def set_time(self, t_us: int) -> None:
         t0, t1 = self.time_range
         self._set_view("time", t_us=int(min(max(int(t_us), t0), t1)))
+
+    def busiest_time(self) -> int:
+        """Centre of the window with the most events (from the ms index: no event read)."""
+        t_bins, counts = self.scene.events.rate(1000)
+        if len(counts) == 0:
+            return self.time_range[0]
+        w_ms = max(self.view.window_us // 1000, 1)
+        per_window = np.convolve(counts, np.ones(w_ms, np.int64), mode="valid")
+        k = int(np.argmax(per_window))
+        return int(t_bins[k] + self.view.window_us // 2)
 
     def step_windows(self, n: int) -> None:
         self.set_time(self.view.t_us + n * self.view.window_us)
@@ -300,8 +312,8 @@ class Session:
 
     # ------------------------------------------------------------------ snapshots for workers
     def request(self) -> FrameRequest:
-        self._serial += 1
-        return FrameRequest(self.scene.with_corrections(self.scene.corrections.copy()), self.view, self._serial)
+        # serials grow across sessions, so a late result of a closed scene is always stale
+        return FrameRequest(self.scene.with_corrections(self.scene.corrections.copy()), self.view, next(_SERIALS))
 
 
 # ---------------------------------------------------------------------- computation (thread-safe)
@@ -312,6 +324,7 @@ class FrameComputer:
     def __init__(self):
         self._annotator: Annotator | None = None
         self._key = None
+        self._score_params = None
 
     def _annotator_for(self, scene: Scene) -> Annotator:
         key = (id(scene.manifest),)
@@ -355,8 +368,25 @@ class FrameComputer:
                         ov.center_uv = o.center_uv
                 overlays.append(ov)
             inside = inside_fraction(ev, labels.label_map)
-        return FrameData(w, len(ev), image, counts, labels, mask_rgba, overlays, inside,
+        scores = self._scores(scene, ev, labels)
+        return FrameData(w, len(ev), image, counts, labels, mask_rgba, overlays, inside, scores,
                          (time.perf_counter() - t_start) * 1e3)
+
+    def _scores(self, scene: Scene, ev: EventArray, labels: WindowLabels) -> dict:
+        """The window's alignment score per object (:mod:`core.score`, higher is better), from the
+        label and depth images the frame already has: no second rasterisation."""
+        from .score import ScoreParams, score_window
+
+        names = scene.object_names
+        if not labels.valid or labels.label_map is None or labels.depth_m is None:
+            return {n: None for n in names}
+        if self._score_params is None or self._score_params[0] is not scene.camera:
+            self._score_params = (scene.camera, ScoreParams().resolved(scene.camera))
+        p = self._score_params[1]
+        if len(ev) > p.max_events:
+            ev = ev[::int(np.ceil(len(ev) / p.max_events))]
+        res = score_window(ev, labels.label_map, labels.depth_m, len(names), p)
+        return {n: (float(r.score) if r.valid else None) for n, r in zip(names, res)}
 
     def spacetime(self, req: FrameRequest) -> SpaceTimeData:
         scene, view = req.scene, req.view

@@ -1,10 +1,23 @@
-"""Shared fixtures: paths to the optional E-POSE assets (never copied into the repo)."""
+"""Shared fixtures: paths to the optional E-POSE assets (never copied into the repo), the tiny
+synthetic scene, and the Qt platform choice (Xvfb via pytest-xvfb, offscreen without a display)."""
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
 import pytest
+
+from evpose_testing import TINY_SCENE, half_davis_camera
+
+@pytest.hookimpl(trylast=True)
+def pytest_configure(config):
+    # after pytest-xvfb has set DISPLAY; without any display Qt widgets still run offscreen
+    if not os.environ.get("DISPLAY"):
+        os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    from app.qt_compat import guard_pyside_refcount_leak
+
+    guard_pyside_refcount_leak()
+
 
 REPO = Path(__file__).resolve().parents[1]
 #: Real E-POSE assets, looked up beside the repository (``../shared/assets/epose``) or via EVPOSE_ASSETS.
@@ -24,24 +37,6 @@ def models_dir() -> Path:
     if not MODELS.is_dir() or not any(MODELS.iterdir()):
         pytest.skip(f"E-POSE meshes not found at {MODELS}")
     return MODELS
-
-
-def half_davis_camera() -> dict:
-    """DAVIS346 calibration at half resolution (173x130): same lens, 4x fewer pixels, fast tests."""
-    from core.camera import CameraModel
-
-    cam = CameraModel.davis346()
-    K = cam.K.copy()
-    K[:2] *= 0.5
-    # pixel centres are at integers: a half-size pixel grid maps c to (c + 0.5) / 2 - 0.5
-    K[0, 2] = (cam.K[0, 2] + 0.5) / 2 - 0.5
-    K[1, 2] = (cam.K[1, 2] + 0.5) / 2 - 0.5
-    return {"width": 173, "height": 130, "K": K.tolist(), "dist": cam.dist.tolist()}
-
-
-#: The shared synthetic scene: 3 objects, trajectory B at 0.5 m/s, clock offset and pose error injected.
-TINY_SCENE = dict(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5, duration_s=0.8,
-                  offset_us=20_000, skew_ppm=0.0, pose_error_mm=5.0, pose_error_deg=3.0, seed=3)
 
 
 @pytest.fixture(scope="session")

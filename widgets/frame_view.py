@@ -59,8 +59,9 @@ class FrameView(QtWidgets.QWidget):
         self.vb.addItem(self.mask_item)
         cam = session.scene.camera
         rect = QtCore.QRectF(-0.5, -0.5, cam.width, cam.height)
-        self.image_item.setRect(rect)
-        self.mask_item.setRect(rect)
+        # image pixel (u, v) covers [u - 0.5, u + 0.5): scene coordinates = OpenCV pixel coordinates
+        for item in (self.image_item, self.mask_item):
+            item.setTransform(QtGui.QTransform.fromTranslate(-0.5, -0.5))
         self.mask_item.setZValue(1)
         self.axis_items = [pg.PlotCurveItem(pen=pg.mkPen(c, width=2), connect="pairs") for c in AXIS_COLORS]
         for it in self.axis_items:

@@ -11,8 +11,9 @@ COLUMNS = ("show", "", "object", "class", "corrected", "score")
 
 class ObjectList(QtWidgets.QTableWidget):
     """One row per object. Checking "show" hides/shows its overlays; selecting a row selects the
-    object for pose corrections. ``set_scores`` fills the score column (lower is better: mean
-    event-to-edge distance in pixels)."""
+    object for pose corrections. ``set_scores`` fills the score column with the current window's
+    :mod:`core.score` alignment score (higher is better: 0 is no better than noise, 1 all events on
+    the silhouette)."""
 
     def __init__(self, session: Session, parent=None):
         super().__init__(len(session.object_names), len(COLUMNS), parent)
@@ -75,7 +76,7 @@ class ObjectList(QtWidgets.QTableWidget):
                 self.item(r, 0).setCheckState(QtCore.Qt.Unchecked if name in view.hidden else QtCore.Qt.Checked)
                 self.item(r, 4).setText("yes" if name in deltas else "")
                 s = self._scores.get(name)
-                self.item(r, 5).setText("–" if s is None or not np.isfinite(s) else f"{s:.2f} px")
+                self.item(r, 5).setText("–" if s is None or not np.isfinite(s) else f"{s:+.2f}")
                 if name == view.selected and not self.item(r, 2).isSelected():
                     self.selectRow(r)
         finally:

@@ -80,7 +80,7 @@ def test_events_are_where_the_true_objects_are(tiny_scene_dir):
 
 
 def test_deterministic_for_a_seed(tmp_path):
-    from conftest import half_davis_camera
+    from evpose_testing import half_davis_camera
 
     cfg = dict(objects=("box",), duration_s=0.15, seed=11, camera=half_davis_camera())
     a = generate(tmp_path / "a", SynthConfig(**cfg))
@@ -91,7 +91,7 @@ def test_deterministic_for_a_seed(tmp_path):
 
 
 def test_cancel_and_existing_folder_leave_nothing(tmp_path):
-    from conftest import half_davis_camera
+    from evpose_testing import half_davis_camera
 
     out = tmp_path / "s"
     calls = {"n": 0}
@@ -120,7 +120,7 @@ def test_invalid_config_is_named():
 
 
 def test_real_meshes(models_dir, tmp_path):
-    from conftest import half_davis_camera
+    from evpose_testing import half_davis_camera
 
     s = generate(tmp_path / "r", SynthConfig(objects=("sugar_box", "mustard_bottle"), mesh_dir=str(models_dir),
                                             duration_s=0.2, camera=half_davis_camera(), seed=2))

@@ -1,10 +1,5 @@
 """Widget tests run under pytest-qt on the Xvfb display pytest-xvfb starts (offscreen without one)."""
-import os
-
 import pytest
-
-if not os.environ.get("DISPLAY"):
-    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 
 @pytest.fixture

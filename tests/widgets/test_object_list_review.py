@@ -14,8 +14,8 @@ def test_object_list_visibility_selection_scores(qtbot, session):
     assert w.item(0, 0).checkState() == QtCore.Qt.Checked
     w.selectRow(2)
     assert session.view.selected == session.object_names[2]
-    w.set_scores({"box": 1.234, "cylinder": None})
-    assert w.item(0, 5).text() == "1.23 px" and w.item(1, 5).text() == "–"
+    w.set_scores({"box": 0.234, "cylinder": None})
+    assert w.item(0, 5).text() == "+0.23" and w.item(1, 5).text() == "–"
     session.nudge_object("box", "base", trans_mm=(1, 0, 0))
     assert w.item(0, 4).text() == "yes"
 

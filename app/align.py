@@ -1,0 +1,230 @@
+"""Automatic estimates in the app: clock sync, pose refinement and sequence-wide scores.
+
+Each runs the core function (:mod:`core.sync`, :mod:`core.refine`, :mod:`core.score`) on a
+snapshot of the scene in a :class:`~app.workers.Job` (the window stays responsive, a progress
+dialog can cancel), then shows the proposal with how sure it is; accepting applies it through
+the History as **one** undo step. Nothing is applied without the user's accept.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6 import QtCore, QtWidgets
+
+from .workers import Job, progress_dialog
+
+
+def _fmt_ms(us) -> str:
+    return "–" if us is None else f"{us / 1000.0:+.3f} ms"
+
+
+def _accept_cancel(dialog: QtWidgets.QDialog, layout, enabled: bool) -> QtWidgets.QPushButton:
+    """Accept (enabled only for a usable proposal) and Cancel buttons; returns Accept."""
+    buttons = QtWidgets.QDialogButtonBox()
+    accept = buttons.addButton("Accept", QtWidgets.QDialogButtonBox.AcceptRole)
+    accept.setEnabled(enabled)
+    buttons.addButton(QtWidgets.QDialogButtonBox.Cancel)
+    buttons.accepted.connect(dialog.accept)
+    buttons.rejected.connect(dialog.reject)
+    layout.addWidget(buttons)
+    return accept
+
+
+class SyncDialog(QtWidgets.QDialog):
+    """The correlation curve of the event rate against the camera motion, the estimate, its
+    confidence, and Accept (only for a reliable estimate)."""
+
+    def __init__(self, parent, result, current_offset_us: int, current_skew_ppm: float):
+        super().__init__(parent)
+        self.result = result
+        self.setWindowTitle("Automatic clock sync")
+        lay = QtWidgets.QVBoxLayout(self)
+        self.plot = pg.PlotWidget(background="w")
+        self.plot.setMinimumSize(520, 240)
+        p = self.plot.getPlotItem()
+        p.setLabel("bottom", "total clock offset (pose − event time)", units="s")
+        p.setLabel("left", "normalised cross-correlation")
+        p.showGrid(x=True, y=True, alpha=0.3)
+        lags = np.asarray(result.lags_us, np.float64)
+        corr = np.asarray(result.correlation, np.float64)
+        if len(lags):
+            p.plot(lags * 1e-6, np.where(np.isfinite(corr), corr, np.nan), pen=pg.mkPen((40, 40, 40), width=1.5),
+                   connect="finite")
+        p.addItem(pg.InfiniteLine(current_offset_us * 1e-6, angle=90,
+                                  pen=pg.mkPen((120, 120, 120), style=QtCore.Qt.DashLine), label="current",
+                                  labelOpts={"position": 0.1, "color": (90, 90, 90)}))
+        if result.offset_us is not None:
+            p.addItem(pg.InfiniteLine(result.offset_us * 1e-6, angle=90, pen=pg.mkPen((200, 30, 30), width=2),
+                                      label="estimate", labelOpts={"position": 0.9, "color": (200, 30, 30)}))
+        lay.addWidget(self.plot, 1)
+        rows = [("current offset", _fmt_ms(current_offset_us)),
+                ("estimated offset", _fmt_ms(result.offset_us)),
+                ("current skew", f"{current_skew_ppm:+.1f} ppm"),
+                ("estimated skew", "kept (not estimated)" if result.skew_ppm is None else f"{result.skew_ppm:+.1f} ppm"),
+                ("confidence", f"{result.confidence:.2f}  (peak NCC {result.peak:.2f}, second peak "
+                               f"{result.second_peak:.2f})"),
+                ("run time", f"{result.runtime_s:.2f} s")]
+        form = QtWidgets.QFormLayout()
+        for k, v in rows:
+            form.addRow(k, QtWidgets.QLabel(v))
+        lay.addLayout(form)
+        self.verdict = QtWidgets.QLabel(
+            "<b>Reliable estimate.</b> Accept applies it as one undo step." if result.reliable else
+            f"<b style='color:#b00'>No reliable estimate:</b> {result.reason}. Keep the current clock "
+            "and correct by hand.")
+        self.verdict.setWordWrap(True)
+        lay.addWidget(self.verdict)
+        self.accept_button = _accept_cancel(self, lay, bool(result.reliable))
+
+
+class RefineDialog(QtWidgets.QDialog):
+    """Before/after of a pose refinement; Accept only when the fit improved."""
+
+    def __init__(self, parent, result):
+        super().__init__(parent)
+        self.result = result
+        self.setWindowTitle(f"Refine {result.object}")
+        lay = QtWidgets.QVBoxLayout(self)
+        form = QtWidgets.QFormLayout()
+
+        def num(x, fmt):
+            return "–" if x is None or not np.isfinite(x) else format(x, fmt)
+
+        rows = [("object", str(result.object)),
+                ("change found", f"{result.dt_mm:.2f} mm (object centre, base frame), {result.dR_deg:.2f}°"),
+                ("alignment score", f"{num(result.score_before, '+.3f')} → {num(result.score_after, '+.3f')} "
+                                    "(higher is better)"),
+                ("edge objective", f"{num(result.objective_before, '.4f')} → {num(result.objective_after, '.4f')}"),
+                ("windows used", str(result.n_windows)),
+                ("iterations", str(result.iterations)),
+                ("run time", f"{result.runtime_s:.1f} s")]
+        for k, v in rows:
+            form.addRow(k, QtWidgets.QLabel(v))
+        lay.addLayout(form)
+        verdict = QtWidgets.QLabel("<b>The fit improved the alignment.</b> Accept applies it as one undo step."
+                                   if result.accepted else f"<b style='color:#b00'>Start kept:</b> {result.reason}")
+        verdict.setWordWrap(True)
+        lay.addWidget(verdict)
+        self.accept_button = _accept_cancel(self, lay, bool(result.accepted))
+
+
+class AlignController(QtCore.QObject):
+    """Runs sync / refine / score jobs for a :class:`~app.main_window.MainWindow`.
+
+    In tests and screenshot runs (``window.modal_dialogs`` False) the proposal dialogs do not
+    block: ``window.auto_answer["sync"]`` / ``["refine"]`` (default True) decide, and the last
+    results are kept in ``last_sync``, ``last_refine`` and ``last_scores``.
+    """
+
+    def __init__(self, window):
+        super().__init__(window)
+        self.window = window
+        self.jobs: list[Job] = []
+        self.last_sync = None
+        self.last_refine = None
+        self.last_scores = None
+
+    # ------------------------------------------------------------------ plumbing
+    def _run(self, title: str, fn, on_done) -> Job | None:
+        session = self.window.session
+        if session is None:
+            return None
+        snapshot = session.scene.with_corrections(session.scene.corrections.copy())
+        job = Job(lambda progress, cancel: fn(snapshot, progress, cancel))
+        dlg = progress_dialog(self.window, title, title + "…", job)
+
+        def finished(result):
+            dlg.close()
+            self.jobs.remove(job)
+            if self.window.session is session:   # the scene may have been closed meanwhile
+                on_done(session, result)
+
+        def failed(message, details):
+            dlg.close()
+            self.jobs.remove(job)
+            if message == "cancelled":
+                self.window.statusBar().showMessage(f"{title.lower()} cancelled", 5000)
+            else:
+                self.window.controller.error(title, message, details)
+
+        job.signals.finished.connect(finished)
+        job.signals.failed.connect(failed)
+        self.jobs.append(job)
+        self.window.statusBar().showMessage(f"{title.lower()}…")
+        return job.start()
+
+    def _decide(self, dlg: QtWidgets.QDialog, key: str) -> bool:
+        if getattr(self.window, "modal_dialogs", True):
+            return dlg.exec() == QtWidgets.QDialog.Accepted
+        return bool(self.window.auto_answer.get(key, True)) and dlg.accept_button.isEnabled()
+
+    def cancel_all(self) -> None:
+        for job in list(self.jobs):
+            job.cancel()
+
+    # ------------------------------------------------------------------ clock sync
+    def auto_sync(self) -> Job | None:
+        from core.sync import sync_scene
+
+        return self._run("Automatic clock sync",
+                         lambda scene, progress, cancel: sync_scene(scene, progress=progress, cancel=cancel),
+                         self._sync_done)
+
+    def _sync_done(self, session, result) -> None:
+        from core.sync import apply_sync
+
+        self.last_sync = result
+        clock = session.scene.clock
+        dlg = SyncDialog(self.window, result, int(clock.offset_us), float(clock.skew_ppm))
+        if self._decide(dlg, "sync") and apply_sync(session.history, session.scene, result, "automatic clock sync"):
+            self.window.statusBar().showMessage(
+                f"clock set to {result.offset_us / 1000:+.3f} ms (confidence {result.confidence:.2f}); Ctrl+Z undoes",
+                8000)
+        elif not result.reliable:
+            self.window.statusBar().showMessage(f"clock sync: no reliable estimate ({result.reason})", 8000)
+        dlg.deleteLater()
+
+    # ------------------------------------------------------------------ pose refinement
+    def refine(self, name: str) -> Job | None:
+        from core.refine import refine_object
+
+        session = self.window.session
+        if session is None or name not in session.object_names:
+            self.window.statusBar().showMessage("select an object to refine", 5000)
+            return None
+        return self._run(f"Refine {name}",
+                         lambda scene, progress, cancel: refine_object(scene, name, progress=progress, cancel=cancel),
+                         self._refine_done)
+
+    def _refine_done(self, session, result) -> None:
+        self.last_refine = result
+        dlg = RefineDialog(self.window, result)
+        if self._decide(dlg, "refine") and result.accepted:
+            session.history.set(("object", result.object), np.asarray(result.dT_base), text=f"refine {result.object}")
+            self.window.statusBar().showMessage(
+                f"{result.object}: moved {result.dt_mm:.2f} mm, {result.dR_deg:.2f}°; Ctrl+Z undoes", 8000)
+        dlg.deleteLater()
+
+    # ------------------------------------------------------------------ scores over the sequence
+    def score_all(self) -> Job | None:
+        from core.score import score_windows
+
+        session = self.window.session
+        if session is None:
+            return None
+        window_us = int(session.view.window_us)
+        return self._run("Score all windows",
+                         lambda scene, progress, cancel: score_windows(scene, window_us=window_us, progress=progress,
+                                                                       cancel=cancel),
+                         self._scores_done)
+
+    def _scores_done(self, session, table) -> None:
+        self.last_scores = table
+        tl = self.window.timeline
+        if tl is None:
+            return
+        t_s = np.array([tl.x_of(t) for t in table.t_label_us], np.float64)
+        tl.set_scores(t_s, {n: np.ma.filled(table.score[n].astype(np.float64), np.nan) for n in table.objects})
+        self.window.ensure_timeline_height(300)   # room for the score row
+        means = ", ".join(f"{n} {m:+.2f}" for n in table.objects if (m := table.mean_score(n)) is not None)
+        self.window.statusBar().showMessage(f"scored {len(table)} windows in {table.runtime_s:.1f} s: {means}", 10_000)
