@@ -104,7 +104,11 @@ def count_windows(store, n_events: int, *, label_at: str = "center") -> list[Win
 class Request:
     """Which products to compute for each window.
 
-    ``margin_m`` enlarges the 3D box on every side. ``camera`` overrides the output camera
+    ``margin_m`` enlarges the 3D box on every side. ``amodal`` computes ``px_count_all`` and
+    ``bbox_obj`` of the full (amodal) mask, which costs one more rasterisation per object that
+    another object may occlude; views that show only visible masks turn it off (then
+    ``px_count_all`` is 0 and ``bbox_obj`` stays ``(-1, -1, -1, -1)`` unless nothing can occlude
+    the object, where the visible mask is the full one). ``camera`` overrides the output camera
     (e.g. the undistorted pinhole camera for BOP); by default labels live in the scene's raw,
     distorted camera, where the events are.
     """
@@ -116,6 +120,7 @@ class Request:
     depth: bool = False
     segment_events: bool = False
     margin_m: float = 0.0
+    amodal: bool = True
 
     @property
     def needs_raster(self) -> bool:
@@ -202,7 +207,7 @@ class Annotator:
         self._raster: Rasterizer | None = None
         self._geometry = {}
         for n in self.names:
-            m = scene.model(n)
+            m = scene.raster_model(n)
             corners = m.bbox_corners(request.margin_m)
             self._geometry[n] = (m, corners, m.bbox_center_m)
 
@@ -283,12 +288,12 @@ class Annotator:
             # can another object occlude this one? only one whose projected box overlaps ours
             occluders = [j for j in visible if j != k and boxes[j] is not None and boxes[k] is not None
                          and _boxes_overlap(boxes[j], boxes[k])]
-            if occluders:
-                full = self.raster.full_mask(self._geometry[lab.name][0], T_co[k])
-            else:
+            if not occluders:
                 full = vis
-            lab.px_count_all = int(np.count_nonzero(full)) if occluders else lab.px_count_visib
-            lab.bbox_obj = mask_bbox(full) if occluders else lab.bbox_visib
+                lab.px_count_all, lab.bbox_obj = lab.px_count_visib, lab.bbox_visib
+            elif req.amodal or req.masks_full:
+                full = self.raster.full_mask(self._geometry[lab.name][0], T_co[k])
+                lab.px_count_all, lab.bbox_obj = int(np.count_nonzero(full)), mask_bbox(full)
             if req.masks_visible:
                 lab.mask_visible = vis
             if req.masks_full:

@@ -393,7 +393,7 @@ class _Setup:
     def __init__(self, scene, names, windows, clock, p: RefineParams):
         self.scene = scene
         self.names = names
-        self.models = [scene.model(n) for n in names]
+        self.models = [scene.raster_model(n) for n in names]
         self.edges = [_MeshEdges(m) for m in self.models]
         self.raster = Rasterizer(scene.camera)
         self.clock = clock

@@ -20,7 +20,7 @@ from .camera import CameraError, CameraModel
 from .corrections import CORRECTIONS_FILENAME, Corrections
 from .fileio import atomic_write_text
 from .geometry import ROTATION_TOLERANCE, GeometryError, inv_T, validate_T
-from .objects import ObjectModel, ObjectModelError
+from .objects import ObjectModel, ObjectModelError, raster_friendly
 from .trajectory import ClockModel, Trajectory, TrajectoryError
 
 if sys.version_info >= (3, 11):
@@ -357,6 +357,15 @@ class Scene:
                 i = self.object_names.index(name)
                 raise SceneError(self.manifest.path, f"objects[{i}].mesh", str(exc)) from None
         return self._models[name]
+
+    def raster_model(self, name: str) -> ObjectModel:
+        """The object's mesh for rasterising: the same surface with long edges split
+        (:func:`core.objects.raster_friendly`; loaded once). Keypoints, boxes and masks are
+        identical to :meth:`model`'s, rendering is faster for coarse CAD meshes."""
+        key = ("raster", name)
+        if key not in self._models:
+            self._models[key] = raster_friendly(self.model(name))
+        return self._models[key]
 
     @property
     def models(self) -> list[ObjectModel]:

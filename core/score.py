@@ -311,7 +311,7 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
         T_bc, pose_ok = scene.T_base_cam(t_label, clock=clock)
         T_cb = inv_T(T_bc)
         T_bo = np.stack([np.asarray(poses[n]) if poses and n in poses else scene.T_base_obj(n) for n in names])
-        models = [scene.model(n) for n in names]
+        models = [scene.raster_model(n) for n in names]
         raster = raster or Rasterizer(scene.camera)
         for i in range(N):
             if cancel is not None and cancel():

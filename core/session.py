@@ -329,7 +329,8 @@ class FrameComputer:
     def _annotator_for(self, scene: Scene) -> Annotator:
         key = (id(scene.manifest),)
         if self._annotator is None or self._key != key:
-            self._annotator = Annotator(scene, Request(keypoints=True, masks_visible=True, label_map=True, depth=True))
+            self._annotator = Annotator(scene, Request(keypoints=True, masks_visible=True, label_map=True, depth=True,
+                                                               amodal=False))   # views show visible masks only
             self._key = key
         self._annotator.scene = scene
         return self._annotator

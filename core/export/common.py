@@ -631,48 +631,6 @@ class WorkerSpec:
     durable: str
 
 
-#: Mesh edges longer than this are split at their midpoints before rasterising (see _RasterScene).
-RASTER_MAX_EDGE_M = 0.02
-
-
-class _RasterScene:
-    """The scene as the export's Annotator sees it: every mesh with its edges longer than
-    :data:`RASTER_MAX_EDGE_M` split at their midpoints (``trimesh.remesh.subdivide_to_size``).
-
-    The surface is the same (planar triangles split into planar pieces; the original vertices are
-    kept, so the bounding box and the keypoints are bit-identical), so masks, label maps and depth are
-    unchanged: 0 differing pixels over 40 DAVIS346 windows of the benchmark scene. But the z-buffer
-    rasteriser of the distorted camera bounds the bend of an edge by a margin quadratic in the
-    triangle's size, so a few huge triangles (synthetic primitives: a 12-triangle box) cost far more
-    than many small ones: 72 -> 12 ms CPU per window with 2 cm edges (pinhole camera 12.5 -> 9.6 ms).
-    Real scanned meshes (E-POSE: sub-centimetre triangles) are left as they are. Everything else is
-    delegated to the real scene.
-    """
-
-    def __init__(self, scene, max_edge_m: float = RASTER_MAX_EDGE_M):
-        self._scene = scene
-        self._max_edge = max_edge_m
-        self._split: dict = {}
-
-    def model(self, name):
-        if name not in self._split:
-            m = self._scene.model(name)
-            v, f = m.vertices_m, m.faces
-            e = v[f[:, [1, 2, 0]]] - v[f]
-            if self._max_edge and float(np.einsum("fij,fij->fi", e, e).max()) > self._max_edge ** 2:
-                import trimesh
-                from ..objects import ObjectModel
-
-                v2, f2 = trimesh.remesh.subdivide_to_size(v, f, max_edge=self._max_edge)
-                m = ObjectModel(m.name, v2, f2, class_id=m.class_id, symmetric=m.symmetric,
-                                source=f"{m.source} (edges split to <= {self._max_edge * 1e3:g} mm for rasterising)")
-            self._split[name] = m
-        return self._split[name]
-
-    def __getattr__(self, name):
-        return getattr(self._scene, name)
-
-
 class WorkerContext:
     """Per-process state: the scene, one Annotator, the writer's buffers, stage timings."""
 
@@ -689,7 +647,7 @@ class WorkerContext:
         self.sel = np.asarray(spec.sel, np.intp)
         self.camera = self.writer.output_camera(scene) or scene.camera
         # all objects are rasterised (objects that are not exported still occlude the exported ones)
-        self.annotator = Annotator(_RasterScene(scene), spec.request, camera=self.camera, objects=scene.object_names)
+        self.annotator = Annotator(scene, spec.request, camera=self.camera, objects=scene.object_names)
         self.timings = dict.fromkeys(STAGES, 0.0)
         #: fsync each file before its rename ("file" mode); "batch" syncs the filesystem per chunk
         self.fsync_files = spec.durable == "file"
