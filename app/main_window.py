@@ -21,7 +21,7 @@ from .undo_bridge import UndoBridge
 from .workers import LatestWorker
 
 AUTOSAVE_MS = 20_000
-SPACETIME_DEBOUNCE_MS = 120
+SPACETIME_DEBOUNCE_MS = 250   # the space-time view follows once scrubbing pauses: it must not slow the frame
 OVERLAY_ACTIONS = {"toggle_mask": "mask", "toggle_contour": "contour", "toggle_box": "box", "toggle_axes": "axes"}
 REPRESENTATION_LABELS = {"polarity": "Polarity (ON red / OFF blue)", "spike": "Spike (any event)",
                          "three_channel": "E-POSE 3-channel", "time_surface": "Time surface",

@@ -8,7 +8,8 @@ from core.annotate import Annotator, Request, time_windows
 from core.events import Cancelled, EventStore
 from core.geometry import pose_error, rotation_angle
 from core.scene import Scene
-from core.synth import SynthConfig, generate, load_ground_truth, make_trajectory
+from core.synth import NOISE_STEP_US, SynthConfig, _render_times, generate, load_ground_truth, make_trajectory
+from core.trajectory import ClockModel
 
 
 def test_scene_files_and_ground_truth(tiny_scene_dir):
@@ -110,9 +111,37 @@ def test_cancel_and_existing_folder_leave_nothing(tmp_path):
     assert (out / "keep.txt").read_text() == "user data"
 
 
+def test_render_schedule_keeps_event_timing():
+    """No "unchanged image" step inside a motion (the next frame's change would be spread over a
+    shortened interval: late events), a frame where each motion starts, noise steps while still."""
+    rng = np.random.default_rng(3)
+    traj, segs = make_trajectory(SynthConfig(trajectory="B", duration_s=3.0), rng, 0.3)
+    clock = ClockModel(20_000, 0.0, 0)
+    e0 = traj.t_first_us + 300_000 - 20_000
+    e1 = e0 + 3_000_000
+    steps, render = _render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0)
+    assert np.all(np.diff(steps) > 0) and steps[0] > e0 and steps[-1] == e1
+    assert np.max(np.diff(np.r_[e0, steps])) <= NOISE_STEP_US           # noise even while still
+    v, w, _ = traj.speed()
+    seg_ev = clock.event_time(traj.t_us)
+    k = np.searchsorted(seg_ev, steps, side="left") - 1
+    moving = (v + w)[np.clip(k, 0, len(v) - 1)] > 1e-6
+    mv = (v + w) > 1e-6
+    starts = seg_ev[:-1][mv & ~np.r_[False, mv[:-1]]]
+    starts = np.rint(starts[(starts > e0) & (starts <= e1)]).astype(np.int64)
+    assert render[moving].all(), "every step inside a motion renders a frame"
+    assert not render[~moving & ~np.isin(steps, starts)].any(), "nothing is rendered while standing still"
+    assert len(starts) >= 2 and np.isin(starts, steps[render]).all(), "a frame where each motion starts"
+    # frames at most max_px apart in the image, and at most max_interval_us apart when asked
+    dense, r2 = _render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0, max_interval_us=1000)
+    gaps = np.diff(dense[r2])
+    assert r2.sum() > render.sum() and np.median(gaps) <= 1000
+
+
 def test_invalid_config_is_named():
     for kw, match in [(dict(trajectory="C"), "trajectory"), (dict(speed_mps=0), "speed"),
-                      (dict(objects=()), "objects"), (dict(objects=("box", "box")), "unique")]:
+                      (dict(objects=()), "objects"), (dict(objects=("box", "box")), "unique"),
+                      (dict(max_px_per_frame=0), "max_px_per_frame"), (dict(max_frame_interval_us=-1), "interval")]:
         with pytest.raises(ValueError, match=match):
             SynthConfig(**kw).validate()
     with pytest.raises(ValueError, match="unknown built-in"):

@@ -18,6 +18,8 @@ def tl(qtbot, session):
     w.resize(1000, 260)
     w.show()
     qtbot.waitExposed(w)
+    # the plot layout settles after the first paints (axis widths); tests map plot x to pixels
+    qtbot.waitUntil(lambda: w.vb.sceneBoundingRect().width() > 0.5 * w.width(), timeout=3000)
     yield w
     w.stop()
 
@@ -42,13 +44,17 @@ def _mouse(widget, kind, pos, button, buttons):
 
 
 def drag(qtbot, widget, points):
-    """Press, move with the left button held (QTest moves carry no buttons), release."""
+    """Press, move with the left button held (QTest moves carry no buttons), release.
+
+    ``points`` are QPoints or callables returning one; callables are evaluated when the event is
+    sent, so a layout that settles during the drag (axis widths, under load) cannot skew the target."""
     E = QtCore.QEvent
-    _mouse(widget, E.MouseButtonPress, points[0], LEFT, LEFT)
-    for p in points[1:]:
-        _mouse(widget, E.MouseMove, p, QtCore.Qt.NoButton, LEFT)
+    at = [p if callable(p) else (lambda p=p: p) for p in points]
+    _mouse(widget, E.MouseButtonPress, at[0](), LEFT, LEFT)
+    for p in at[1:]:
+        _mouse(widget, E.MouseMove, p(), QtCore.Qt.NoButton, LEFT)
         QtWidgets.QApplication.processEvents()
-    _mouse(widget, E.MouseButtonRelease, points[-1], LEFT, QtCore.Qt.NoButton)
+    _mouse(widget, E.MouseButtonRelease, at[-1](), LEFT, QtCore.Qt.NoButton)
     QtWidgets.QApplication.processEvents()
 
 
@@ -143,7 +149,7 @@ def test_drag_scrubs_throttled(tl, session, qtbot):
     session.subscribe(lambda what: what == "time" and updates.append(session.view.t_us))
     xs = np.linspace(0.1, 0.7, 150)
     start = time.monotonic()
-    drag(qtbot, tl.glw.viewport(), [viewport_pos(tl, tl.vb, x) for x in xs])
+    drag(qtbot, tl.glw.viewport(), [lambda x=x: viewport_pos(tl, tl.vb, x) for x in xs])
     elapsed = time.monotonic() - start
     assert abs(session.view.t_us - (t0 + 700_000)) <= 1000
     # leading + trailing throttle: at most one set_time per interval (+ press and release)
@@ -156,7 +162,7 @@ def test_drag_scrubs_throttled(tl, session, qtbot):
 def test_drag_the_cursor_line(tl, session, qtbot):
     t0 = session.time_range[0]
     session.set_time(t0 + 200_000)
-    pts = [viewport_pos(tl, tl.vb, x, 0.3) for x in np.linspace(0.2, 0.45, 20)]
+    pts = [lambda x=x: viewport_pos(tl, tl.vb, x, 0.3) for x in np.linspace(0.2, 0.45, 20)]
     with qtbot.waitSignal(tl.scrubbed, timeout=1000):
         drag(qtbot, tl.glw.viewport(), pts)
     qtbot.wait(2 * 33)
