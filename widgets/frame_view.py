@@ -13,6 +13,11 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from core.overlay import AXIS_COLORS
 from core.session import FrameData, Session
 
+from .labels import Readout
+
+#: Sizes the hover readout (longer object names are clipped there; the status bar shows them whole).
+READOUT_TEMPLATE = "u 345, v 259 | 999 ev | an_object_name_here @ 1234.5 mm"
+
 
 def _polylines_to_nan_separated(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Concatenate polylines with NaN breaks for one ``PlotCurveItem(connect='finite')``."""
@@ -78,9 +83,10 @@ class FrameView(QtWidgets.QWidget):
             self._ensure_items(name)
         self.vb.setRange(rect, padding=0.01)
 
-        self.readout = QtWidgets.QLabel(" ")
-        self.readout.setTextInteractionFlags(QtCore.Qt.TextSelectableByMouse)
-        self.info = QtWidgets.QLabel(" ")
+        # constant-size labels: their text changes every frame / mouse move without a relayout
+        self.readout = Readout(READOUT_TEMPLATE)
+        self.info = Readout("t = 9999.9999 s   window 99 ms   99,999 events   on masks 99.9%   (99 ms)",
+                                stretch=True)
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.glw, 1)
@@ -190,7 +196,7 @@ class FrameView(QtWidgets.QWidget):
                 text += f" | {info['object']}"
                 if info["depth_m"] is not None:
                     text += f" @ {info['depth_m'] * 1000:.1f} mm"
-        self.readout.setText(text or " ")
+        self.readout.setText(text)
         self.hoverText.emit(text)
 
     def grab_image(self) -> QtGui.QImage:

@@ -39,6 +39,8 @@ import numpy as np
 import shiboken6
 from PySide6 import QtCore, QtWidgets
 
+from .labels import Readout
+
 #: Event colours, as in the frame view (``core.represent``): ON red, OFF blue.
 ON_RGBA = (1.0, 0.0, 0.0, 0.55)
 OFF_RGBA = (0.0, 0.0, 1.0, 0.55)
@@ -294,12 +296,10 @@ class SpaceTimeView(QtWidgets.QWidget):
         self.budget_spin.setGroupSeparatorShown(True)
         self.budget_spin.setToolTip("Point budget: at most this many events are drawn (decimated in time)")
         self.budget_spin.setKeyboardTracking(False)
-        self.info_label = QtWidgets.QLabel("no events")
-        self.info_label.setTextInteractionFlags(QtCore.Qt.TextSelectableByMouse)
+        self.info_label = Readout("99,999,999 of 99,999,999 events shown", "no events", stretch=True)
 
         # three short rows: the view usually lives in a narrow dock
         self.scale_slider.setMinimumWidth(90)
-        self.info_label.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Preferred)
         row1 = QtWidgets.QHBoxLayout()
         for w in (self.reset_button, self.front_button, self.side_button, self.top_button):
             row1.addWidget(w)

@@ -25,6 +25,8 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from core.session import Session, TimelineData, timeline_data
 
+from .labels import Readout
+
 #: Review status colours (same as the review panel's).
 STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
 RATE_COLOR = (90, 90, 90)
@@ -36,6 +38,7 @@ PLAY_SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0)
 SCRUB_INTERVAL_MS = 33           # at most ~30 session.set_time calls per second while dragging
 PLAY_INTERVAL_MS = 30            # playback tick
 BIN_US = 1000                    # timeline bin (event rate and speed), µs
+READOUT_WIDEST = "-99999.999999 s │ 99999999999999999 µs │ win 9999.5 ms"   # sizes the readout
 MIN_X_RANGE_S = 0.005            # deepest zoom: 5 ms across the plot
 DOWNSAMPLE_PER_PX = 2.0          # peak downsampling: min/max of ~2 bins per pixel column
 GLOBAL_MARK_ALPHA = 55           # marks over all objects: full-height translucent bands
@@ -178,12 +181,9 @@ class Timeline(QtWidgets.QWidget):
         for s in PLAY_SPEEDS:
             self.speed_combo.addItem(f"{s:g}×", s)
         self.speed_combo.setCurrentIndex(PLAY_SPEEDS.index(1.0))
-        self.readout = QtWidgets.QLabel()
-        self.readout.setTextInteractionFlags(QtCore.Qt.TextSelectableByMouse)
+        self.readout = Readout(READOUT_WIDEST, fixed_font=True)   # no relayout per time step
         self.readout.setFocusPolicy(QtCore.Qt.NoFocus)
         self.readout.setToolTip("current time: seconds since the first event | event-clock µs | window length")
-        font = QtGui.QFontDatabase.systemFont(QtGui.QFontDatabase.FixedFont)
-        self.readout.setFont(font)
         self.fit_button = QtWidgets.QToolButton(text="Fit")
         self.fit_button.setToolTip("show the whole sequence (wheel / right drag: zoom; Shift+drag: pan)")
         self.fit_button.setAutoRaise(True)

@@ -1,0 +1,58 @@
+"""A one-line text readout whose text changes often without moving anything else in the window.
+
+``QLabel.setText`` always asks the layout for a new geometry; the layout is then activated up to
+the main window and repaints what it touches. Where the window holds an OpenGL view, every repaint
+is a flush of the whole window through the GL compositor (~12 ms with software GL under Xvfb, see
+``bench/bench_scrub.py``), so readouts that change on every scrub step or mouse move use
+:class:`Readout`: a constant size hint (sized for a template text), and a new text only repaints
+the widget itself.
+"""
+from __future__ import annotations
+
+from PySide6 import QtCore, QtGui, QtWidgets
+
+
+class Readout(QtWidgets.QWidget):
+    """One line of text with a constant size hint, ``template`` wide.
+
+    ``stretch=True``: the width follows the layout (the text is elided on the right when it does
+    not fit); otherwise the width is the template's. The context menu copies the text.
+    """
+
+    def __init__(self, template: str, text: str = "", parent=None, *, fixed_font: bool = False,
+                 stretch: bool = False):
+        super().__init__(parent)
+        self._text = str(text)
+        self._template = template
+        if fixed_font:
+            self.setFont(QtGui.QFontDatabase.systemFont(QtGui.QFontDatabase.FixedFont))
+        self.setSizePolicy(QtWidgets.QSizePolicy.Ignored if stretch else QtWidgets.QSizePolicy.Fixed,
+                           QtWidgets.QSizePolicy.Fixed)
+        self.setContextMenuPolicy(QtCore.Qt.ActionsContextMenu)
+        copy = QtGui.QAction("Copy", self)
+        copy.triggered.connect(lambda: QtWidgets.QApplication.clipboard().setText(self._text))
+        self.addAction(copy)
+
+    def text(self) -> str:
+        return self._text
+
+    def setText(self, text: str) -> None:  # noqa: N802 (Qt naming)
+        text = str(text)
+        if text != self._text:
+            self._text = text
+            self.update()          # no updateGeometry(): the size hint never depends on the text
+
+    def sizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
+        fm = self.fontMetrics()
+        return QtCore.QSize(fm.horizontalAdvance(self._template) + 8, fm.height() + 6)
+
+    def minimumSizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
+        return QtCore.QSize(40, self.sizeHint().height())
+
+    def paintEvent(self, event) -> None:  # noqa: N802 (Qt API)
+        p = QtGui.QPainter(self)
+        r = self.contentsRect().adjusted(3, 0, -3, 0)
+        p.setPen(self.palette().color(QtGui.QPalette.WindowText))
+        p.drawText(r, QtCore.Qt.AlignLeft | QtCore.Qt.AlignVCenter,
+                   self.fontMetrics().elidedText(self._text, QtCore.Qt.ElideRight, r.width()))
+        p.end()
