@@ -15,9 +15,6 @@ from core.session import FrameData, Session
 
 from .labels import Readout
 
-#: Sizes the hover readout (longer object names are clipped there; the status bar shows them whole).
-READOUT_TEMPLATE = "u 345, v 259 | 999 ev | an_object_name_here @ 1234.5 mm"
-
 
 def _polylines_to_nan_separated(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Concatenate polylines with NaN breaks for one ``PlotCurveItem(connect='finite')``."""
@@ -83,17 +80,15 @@ class FrameView(QtWidgets.QWidget):
             self._ensure_items(name)
         self.vb.setRange(rect, padding=0.01)
 
-        # constant-size labels: their text changes every frame / mouse move without a relayout
-        self.readout = Readout(READOUT_TEMPLATE)
-        self.info = Readout("t = 9999.9999 s   window 99 ms   99,999 events   on masks 99.9%   (99 ms)",
-                                stretch=True)
+        # one constant-size line: frame info on the left, hover readout on the right; the texts
+        # change every frame / mouse move without a relayout of the window (widgets.labels)
+        self.info = Readout("t 9999.9999 s   win 99 ms   99,999 ev   on masks 99.9%   (99 ms)",
+                            stretch=True)
+        self.info.setToolTip("current window; right: what is under the mouse (pixel, events, object, depth)")
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.glw, 1)
-        row = QtWidgets.QHBoxLayout()
-        row.addWidget(self.info, 1)
-        row.addWidget(self.readout, 0)
-        lay.addLayout(row)
+        lay.addWidget(self.info)
         self._hover: tuple[int, int] | None = None
         self._proxy = pg.SignalProxy(self.glw.scene().sigMouseMoved, rateLimit=30, slot=self._mouse_moved)
 
@@ -157,8 +152,8 @@ class FrameView(QtWidgets.QWidget):
             self.message.setText("")
         inside = "–" if data.inside_fraction is None else f"{100 * data.inside_fraction:.1f}%"
         t_rel = (w.t_label_us - self.session.time_range[0]) / 1e6
-        self.info.setText(f"t = {t_rel:.4f} s   window {(w.t1_us - w.t0_us) / 1000:g} ms   "
-                          f"{data.n_events:,} events   on masks {inside}   ({data.compute_ms:.0f} ms)")
+        self.info.setText(f"t {t_rel:.4f} s   win {(w.t1_us - w.t0_us) / 1000:g} ms   {data.n_events:,} ev   "
+                          f"on masks {inside}   ({data.compute_ms:.0f} ms)")
         self._update_readout()
 
     # ------------------------------------------------------------------ hover
@@ -196,7 +191,7 @@ class FrameView(QtWidgets.QWidget):
                 text += f" | {info['object']}"
                 if info["depth_m"] is not None:
                     text += f" @ {info['depth_m'] * 1000:.1f} mm"
-        self.readout.setText(text)
+        self.info.setRightText(text)
         self.hoverText.emit(text)
 
     def grab_image(self) -> QtGui.QImage:

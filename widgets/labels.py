@@ -16,13 +16,16 @@ class Readout(QtWidgets.QWidget):
     """One line of text with a constant size hint, ``template`` wide.
 
     ``stretch=True``: the width follows the layout (the text is elided on the right when it does
-    not fit); otherwise the width is the template's. The context menu copies the text.
+    not fit); otherwise the width is the template's. An optional second text
+    (:meth:`setRightText`) is drawn right-aligned on the same line and wins when space is short.
+    The context menu copies both.
     """
 
     def __init__(self, template: str, text: str = "", parent=None, *, fixed_font: bool = False,
                  stretch: bool = False):
         super().__init__(parent)
         self._text = str(text)
+        self._right = ""
         self._template = template
         if fixed_font:
             self.setFont(QtGui.QFontDatabase.systemFont(QtGui.QFontDatabase.FixedFont))
@@ -30,7 +33,8 @@ class Readout(QtWidgets.QWidget):
                            QtWidgets.QSizePolicy.Fixed)
         self.setContextMenuPolicy(QtCore.Qt.ActionsContextMenu)
         copy = QtGui.QAction("Copy", self)
-        copy.triggered.connect(lambda: QtWidgets.QApplication.clipboard().setText(self._text))
+        copy.triggered.connect(lambda: QtWidgets.QApplication.clipboard().setText(
+            "  ".join(t for t in (self._text, self._right) if t)))
         self.addAction(copy)
 
     def text(self) -> str:
@@ -42,6 +46,15 @@ class Readout(QtWidgets.QWidget):
             self._text = text
             self.update()          # no updateGeometry(): the size hint never depends on the text
 
+    def rightText(self) -> str:  # noqa: N802 (Qt naming)
+        return self._right
+
+    def setRightText(self, text: str) -> None:  # noqa: N802 (Qt naming)
+        text = str(text)
+        if text != self._right:
+            self._right = text
+            self.update()
+
     def sizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
         fm = self.fontMetrics()
         return QtCore.QSize(fm.horizontalAdvance(self._template) + 8, fm.height() + 6)
@@ -51,8 +64,15 @@ class Readout(QtWidgets.QWidget):
 
     def paintEvent(self, event) -> None:  # noqa: N802 (Qt API)
         p = QtGui.QPainter(self)
+        fm = self.fontMetrics()
         r = self.contentsRect().adjusted(3, 0, -3, 0)
         p.setPen(self.palette().color(QtGui.QPalette.WindowText))
-        p.drawText(r, QtCore.Qt.AlignLeft | QtCore.Qt.AlignVCenter,
-                   self.fontMetrics().elidedText(self._text, QtCore.Qt.ElideRight, r.width()))
+        left_w = r.width()
+        if self._right:
+            right = fm.elidedText(self._right, QtCore.Qt.ElideLeft, r.width())
+            p.drawText(r, QtCore.Qt.AlignRight | QtCore.Qt.AlignVCenter, right)
+            left_w = max(r.width() - fm.horizontalAdvance(right) - fm.horizontalAdvance("   "), 0)
+        if left_w > 0:
+            p.drawText(r.adjusted(0, 0, left_w - r.width(), 0), QtCore.Qt.AlignLeft | QtCore.Qt.AlignVCenter,
+                       fm.elidedText(self._text, QtCore.Qt.ElideRight, left_w))
         p.end()

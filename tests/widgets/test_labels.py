@@ -59,3 +59,19 @@ def test_fixed_width_from_the_template_and_copy(qtbot):
     dark = sum(1 for x in range(0, img.width(), 2) for y in range(img.height())
                if img.pixelColor(x, y).lightness() < 100)
     assert dark > 5
+
+
+def test_right_text_wins_when_space_is_short(qtbot):
+    r = Readout("t 0.1234 s   win 10 ms", "t 0.1234 s   win 10 ms   12,345 ev   on masks 45.6%", stretch=True)
+    host, spy = _host(qtbot, r)
+    r.setRightText("u 12, v 34 | 5 ev | box @ 412.0 mm")
+    QtWidgets.QApplication.processEvents()
+    assert r.rightText() == "u 12, v 34 | 5 ev | box @ 412.0 mm" and spy.n == 0
+    r.actions()[0].trigger()
+    assert QtWidgets.QApplication.clipboard().text() == r.text() + "  " + r.rightText()
+    # narrow: the right text is drawn whole at the right edge, the left one is elided
+    host.resize(r.fontMetrics().horizontalAdvance(r.rightText()) + 140, 40)
+    qtbot.wait(50)
+    img = r.grab().toImage()
+    cols = [x for x in range(img.width()) if any(img.pixelColor(x, y).lightness() < 100 for y in range(img.height()))]
+    assert cols and cols[-1] > img.width() - 12          # text reaches the right edge
