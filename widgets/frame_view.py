@@ -108,6 +108,12 @@ class FrameView(QtWidgets.QWidget):
         self._items[name] = items
         return items
 
+    def sizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
+        return QtCore.QSize(720, 560)       # the main view: it gets the room the docks leave
+
+    def minimumSizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
+        return QtCore.QSize(420, 320)       # a DAVIS346 frame stays readable next to the docks
+
     def reset_zoom(self) -> None:
         cam = self.session.scene.camera
         self.vb.setRange(QtCore.QRectF(-0.5, -0.5, cam.width, cam.height), padding=0.01)
