@@ -11,9 +11,10 @@ Products (computed only when requested, see :class:`Request`):
 
 Work left out where the scene does not need it: objects whose 3D box is outside the view are
 culled before rasterising; all objects are rasterised once per window (one z-buffer gives every
-visible mask); a full mask is rendered separately only for an object whose projected box
-overlaps another object's box (otherwise nothing can occlude it and full == visible),
-so a single-object scene never renders twice; rasterisers and per-object geometry are cached.
+visible mask); a full mask is rendered separately only for an object that another object
+actually hides somewhere: a visible pixel of another object whose ray lies inside the object's
+projected 3D box (otherwise full == visible), so a single-object scene or objects side by side
+never render twice; rasterisers and per-object geometry are cached.
 Windows whose label time falls outside the trajectory get no label, with the reason.
 """
 from __future__ import annotations
@@ -106,9 +107,9 @@ class Request:
 
     ``margin_m`` enlarges the 3D box on every side. ``amodal`` computes ``px_count_all`` and
     ``bbox_obj`` of the full (amodal) mask, which costs one more rasterisation per object that
-    another object may occlude; views that show only visible masks turn it off (then
-    ``px_count_all`` is 0 and ``bbox_obj`` stays ``(-1, -1, -1, -1)`` unless nothing can occlude
-    the object, where the visible mask is the full one). ``camera`` overrides the output camera
+    another object hides; views that show only visible masks turn it off (then
+    ``px_count_all`` is 0 and ``bbox_obj`` stays ``(-1, -1, -1, -1)`` unless nothing hides the
+    object, where the visible mask is the full one). ``camera`` overrides the output camera
     (e.g. the undistorted pinhole camera for BOP); by default labels live in the scene's raw,
     distorted camera, where the events are.
     """
@@ -220,8 +221,8 @@ class Annotator:
     def poses(self, t_label_us) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(T_cam_obj (N, K, 4, 4), T_base_cam (N, 4, 4), valid (N,))`` at label times."""
         t = np.atleast_1d(np.asarray(t_label_us, dtype=np.int64))
-        T_co, valid = self.scene.T_cam_obj(t, self.names, clock=self.clock)
-        T_bc, _ = self.scene.T_base_cam(t, clock=self.clock)
+        T_bc, valid = self.scene.T_base_cam(t, clock=self.clock)          # interpolated once
+        T_co, _ = self.scene.T_cam_obj(t, self.names, clock=self.clock, base_cam=(T_bc, valid))
         return T_co, T_bc, valid
 
     def annotate(self, window: Window, events: EventArray | None = None, *,
@@ -285,9 +286,11 @@ class Annotator:
             vis = label_map == k
             lab.px_count_visib = int(counts[k])
             lab.bbox_visib = mask_bbox(vis)
-            # can another object occlude this one? only one whose projected box overlaps ours
+            # is this object hidden anywhere? only where another object's visible pixel lies inside
+            # our silhouette's bound (exact test, ~0.1 ms; was: any overlap of the projected boxes)
             occluders = [j for j in visible if j != k and boxes[j] is not None and boxes[k] is not None
-                         and _boxes_overlap(boxes[j], boxes[k])]
+                         and _boxes_overlap(boxes[j], boxes[k])
+                         and _pixels_in_box(cam, label_map, j, boxes[k])]
             if not occluders:
                 full = vis
                 lab.px_count_all, lab.bbox_obj = lab.px_count_visib, lab.bbox_visib
@@ -333,6 +336,19 @@ def _normalised_extent(cam: CameraModel) -> tuple[np.ndarray, np.ndarray]:
         pts = xy[ok]
         _EXTENT_CACHE[key] = (pts.min(0) - 1e-6, pts.max(0) + 1e-6)
     return _EXTENT_CACHE[key]
+
+
+def _pixels_in_box(cam: CameraModel, label_map: np.ndarray, j: int, box) -> bool:
+    """Does a pixel showing object ``j`` have its ray inside ``box`` (normalised plane, from
+    :func:`_projected_box`)? If no other object's visible pixel does, nothing hides the object
+    of ``box``: its full mask is its visible mask."""
+    if not np.all(np.isfinite(box)):
+        return True
+    v, u = np.nonzero(label_map == j)
+    if len(v) == 0:
+        return False
+    xy = cam.pixel_rays()[0][v, u]
+    return bool(np.any((xy[:, 0] >= box[0]) & (xy[:, 0] <= box[2]) & (xy[:, 1] >= box[1]) & (xy[:, 1] <= box[3])))
 
 
 def _projected_box(cam: CameraModel, corners_cam: np.ndarray):

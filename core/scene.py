@@ -427,8 +427,10 @@ class Scene:
         d = self.corrections.object_deltas.get(name)
         return T.copy() if d is None else d @ T
 
-    def T_cam_obj(self, t_event_us, names=None, clock: ClockModel | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Object poses in the camera at event times.
+    def T_cam_obj(self, t_event_us, names=None, clock: ClockModel | None = None, *,
+                  base_cam: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Object poses in the camera at event times (``base_cam``: the result of
+        :meth:`T_base_cam` for the same times and clock, when the caller has it already).
 
         Returns
         -------
@@ -438,7 +440,7 @@ class Scene:
             False where the pose time is outside the trajectory (those rows are identity).
         """
         names = self.object_names if names is None else list(names)
-        T_bc, valid = self.T_base_cam(np.atleast_1d(t_event_us), clock)
+        T_bc, valid = base_cam if base_cam is not None else self.T_base_cam(np.atleast_1d(t_event_us), clock)
         T_cb = inv_T(T_bc)
         T_bo = np.stack([self.T_base_obj(n) for n in names]) if names else np.zeros((0, 4, 4))
         T = np.einsum("nij,kjl->nkil", T_cb, T_bo)

@@ -679,6 +679,9 @@ _WORKER: WorkerContext | None = None
 def _worker_init(spec: WorkerSpec) -> None:
     global _WORKER
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # the parent handles Ctrl-C and terminates the pool
+    import cv2
+
+    cv2.setNumThreads(1)     # one process per core already: OpenCV's own threads would only compete
     _WORKER = WorkerContext(spec)
 
 

@@ -141,6 +141,49 @@ def test_single_object_never_renders_a_full_mask_separately(scene, monkeypatch):
         assert o.mask_full is o.mask_visible or np.array_equal(o.mask_full, o.mask_visible)
 
 
+def test_full_masks_are_rendered_exactly_when_something_hides_the_object(scene, monkeypatch):
+    """The second rasterisation is skipped when no other object's pixel lies in the object's
+    projected box, and the result is still exact: compare with a direct full render."""
+    from core.raster import Rasterizer
+
+    rendered = []
+    orig_full = Rasterizer.full_mask
+
+    def full(self, model, T):
+        rendered.append(model)
+        return orig_full(self, model, T)
+
+    monkeypatch.setattr(Rasterizer, "full_mask", full)
+    ann = Annotator(scene, Request(masks_visible=True, masks_full=True, label_map=True))
+    wins = busy_windows(scene, 4)
+    n_in_view = 0
+    for w in wins:
+        lab = ann.annotate(w)
+        for k, o in enumerate(lab.objects):
+            if o.in_view:
+                n_in_view += 1
+                ref = orig_full(ann.raster, ann._geometry[o.name][0], o.T_cam_obj)
+                assert np.array_equal(o.mask_full, ref), (w.index, o.name)
+    print(f"full masks rendered for {len(rendered)} of {n_in_view} objects in view")
+    assert len(rendered) < n_in_view, "objects side by side need no second render"
+    # put the cylinder right in front of the box (between it and the camera): now it must render
+    w = wins[0]
+    lab = ann.annotate(w)
+    box = lab.objects[scene.object_names.index("box")]
+    T_cam_base = inv_T(scene.T_base_cam(np.array([w.t_label_us]))[0][0])
+    T_cam_cyl = box.T_cam_obj.copy()
+    T_cam_cyl[:3, 3] *= 0.6                                    # 40 % nearer, on the same ray
+    T_base_cyl_new = inv_T(T_cam_base) @ T_cam_cyl
+    T_base_cyl = scene.T_base_obj("cylinder")                  # no correction yet: the manifest's
+    scene.corrections.set(("object", "cylinder"), T_base_cyl_new @ inv_T(T_base_cyl))
+    rendered.clear()
+    lab = ann.annotate(w)
+    box = lab.objects[scene.object_names.index("box")]
+    assert rendered, "the hidden box needs its own full render"
+    assert box.mask_full.sum() > box.mask_visible.sum()
+    assert np.array_equal(box.mask_full, orig_full(ann.raster, ann._geometry["box"][0], box.T_cam_obj))
+
+
 def test_objects_outside_the_view_are_culled(scene):
     ann = Annotator(scene, Request(masks_visible=True))
     w = busy_windows(scene, 1)[0]
