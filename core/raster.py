@@ -666,8 +666,9 @@ class Rasterizer:
         groups: dict[int, list] = {1: [], 2: [], 4: [], 6: [], 9: []}
         results: list = []
 
-        def evaluate(idx, pix, gid):
-            res = self._eval_tris(xy, iz, idx, pix, want_depth)
+        def evaluate(idx, pix, gid, boxes=None):
+            res = (self._eval_tris(xy, iz, idx, pix, want_depth) if boxes is None
+                   else self._eval_boxes(xy, iz, idx, *boxes, want_depth))
             if res is not None:
                 ti, p, key = res
                 g = gid.take(ti)
@@ -898,25 +899,23 @@ class Rasterizer:
                 np.minimum(pix, HW, out=pix)
                 add(k, t_big.take(sb), pix, idx.take(sb, axis=1))
             sb_all = np.flatnonzero(ok & (lng > 3))
-            # longer boxes: exact candidate lists, in chunks of at most _PAIR_CHUNK pairs
-            # (a big mesh close to the lens could otherwise need gigabytes); big chunks are
-            # tested at once rather than queued, to bound memory
+            # longer boxes: every pixel of the box is tested against the triangle's edge
+            # coefficients (computed once per triangle, :meth:`_eval_boxes`), in chunks of at
+            # most _PAIR_CHUNK pairs (a big mesh close to the lens could otherwise need gigabytes)
             counts_all = nu.take(sb_all) * nv.take(sb_all)
             cum = np.cumsum(counts_all)
             cuts = np.searchsorted(cum, np.arange(_PAIR_CHUNK, int(cum[-1]) if len(cum) else 0, _PAIR_CHUNK))
-            for sb, counts in zip(np.split(sb_all, cuts), np.split(counts_all, cuts)):
+            t_eval = 0.0
+            for sb in np.split(sb_all, cuts):
                 if not len(sb):
                     continue
-                start = np.repeat(np.cumsum(counts) - counts, counts)
-                k = np.arange(int(counts.sum()), dtype=np.intp) - start
-                nu_r = np.repeat(nu[sb], counts)
-                dvv = k // nu_r
-                pix = np.repeat(corner[sb], counts) + dvv * W + (k - dvv * nu_r)
-                ii = np.repeat(idx.take(sb, axis=1), counts, axis=1)
-                if len(k) > _PAIR_CHUNK // 8:
-                    evaluate(ii + voff if voff else ii, pix[None, :], np.repeat(t_big[sb], counts) + base)
-                else:
-                    add(1, np.repeat(t_big[sb], counts), pix[None, :], ii)
+                te = time.perf_counter()
+                ii = idx.take(sb, axis=1)
+                evaluate(ii + voff if voff else ii, None, t_big.take(sb) + base,
+                         boxes=(corner.take(sb), nu.take(sb), nv.take(sb)))
+                t_eval += time.perf_counter() - te
+            self._acc("pixel tests", t_eval)
+            t3 += t_eval
         self._acc("candidates", time.perf_counter() - t3)
 
     def _eval_tris(self, xy: np.ndarray, iz: np.ndarray, idx: np.ndarray, pix: np.ndarray, want_depth: bool):
@@ -984,6 +983,75 @@ class Rasterizer:
         w_b = e2.ravel().take(f)
         w_b *= I3[1] - I3[0]
         w_c = e0.ravel().take(f)
+        w_c *= I3[2] - I3[0]
+        w_b += w_c
+        w_b /= aa.take(ti)
+        w_b += I3[0]                                             # 1/z
+        pos = w_b > 0
+        if not pos.all():
+            ti, p, w_b = ti[pos], p[pos], w_b[pos]
+        key = (np.float32(1.0) / w_b).view(np.uint32).astype(np.uint64) << _SHIFT32
+        return ti, p, key
+
+    def _eval_boxes(self, xy: np.ndarray, iz: np.ndarray, idx: np.ndarray, corner: np.ndarray,
+                    nu: np.ndarray, nv: np.ndarray, want_depth: bool):
+        """Exact pixel tests of every pixel of each triangle's candidate box.
+
+        Same test and result as :meth:`_eval_tris` (``ti`` indexes the columns of ``idx``), for
+        triangles whose box is ``nu x nv`` pixels from the flat pixel ``corner`` (inside the
+        image). The edge coefficients are computed once per triangle and repeated to its
+        pixels, instead of gathering three vertices and recomputing them for every pair.
+        """
+        W = self.width
+        m = idx.shape[1]
+        P3 = xy.take(idx)                                        # (3, m) complex64
+        X3, Y3 = P3.real, P3.imag
+        coef = np.empty((7, m), dtype=np.float32)                # per triangle, repeated per pixel
+        coef[0] = X3[0]
+        coef[1] = Y3[0]
+        np.subtract(Y3[0], Y3[1], out=coef[2])                   # E0 = C0 dx + C1 dy
+        np.subtract(X3[1], X3[0], out=coef[3])
+        np.subtract(Y3[2], Y3[0], out=coef[4])                   # E2 = C2 dx + C3 dy
+        np.subtract(X3[0], X3[2], out=coef[5])
+        area = coef[3] * coef[4] - coef[2] * coef[5]
+        coef[2:6] *= np.sign(area)
+        aa = np.abs(area)
+        aa[area == 0] = -1.0
+        coef[6] = aa
+        # pixels: rows of each box, then the pixels of each row (no division per pair)
+        row_tri = np.repeat(np.arange(m), nv)
+        row_first = np.cumsum(nv) - nv
+        row_start = corner.take(row_tri) + (np.arange(len(row_tri)) - row_first.take(row_tri)) * W
+        row_len = nu.take(row_tri)
+        n = int(row_len.sum())
+        pair_first = np.cumsum(row_len) - row_len
+        pix = np.arange(n, dtype=np.intp)
+        pix += np.repeat(row_start - pair_first, row_len)
+        per_tri = nu * nv
+        tp = np.repeat(np.arange(m), per_tri)                    # triangle of each pair
+        E = np.repeat(coef, per_tri, axis=1)                     # (7, n): sequential copies
+        D = self._XY.take(pix)
+        dx = D.real - E[0]
+        dy = D.imag - E[1]
+        e0 = E[2] * dx
+        e0 += E[3] * dy
+        e2 = E[4] * dx
+        e2 += E[5] * dy
+        ins = e0 >= 0
+        ins &= e2 >= 0
+        ssum = e0 + e2
+        ins &= ssum <= E[6]
+        f = np.flatnonzero(ins)
+        if not len(f):
+            return None
+        ti = tp.take(f)
+        p = pix.take(f)
+        if not want_depth:
+            return ti, p, None
+        I3 = iz.take(idx.take(ti, axis=1))                      # (3, k)
+        w_b = e2.take(f)
+        w_b *= I3[1] - I3[0]
+        w_c = e0.take(f)
         w_c *= I3[2] - I3[0]
         w_b += w_c
         w_b /= aa.take(ti)
