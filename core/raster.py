@@ -39,6 +39,9 @@ Algorithm (vectorised; Python loops only over meshes and a few triangle classes)
    interpolation of ``1/z`` (exact for a plane). The z-buffer keeps, per pixel, the minimum
    of the uint64 key ``(float32 z bits << 32) | triangle id`` via ``np.minimum.at``: the
    nearest surface wins; exact depth ties go to the lower id (earlier mesh, lower face).
+   Triangles whose box is longer than 3 pixels (coarse meshes: procedural boxes, CAD with
+   long faces) test every pixel of their box against edge coefficients computed once per
+   triangle and repeated to its pixels (:meth:`Rasterizer._eval_boxes`), same test and result.
 
 Tie rule: triangles are *closed* (``>= 0`` edge tests), so a pixel centre exactly on an edge
 shared by two triangles of a mesh is covered (the z-buffer picks one of them); there is no
