@@ -4,9 +4,9 @@ Run ``python bench/accuracy.py`` (``--quick`` for one seed and fewer window coun
 run also writes ``docs/accuracy.png`` and ``docs/accuracy.txt`` (``--no-docs`` to skip); the
 plot always goes to ``bench/out/accuracy.png``, the tables to stdout.
 
-Run time on 2 cores: full ~10 min with the scenes cached, quick ~4 min. The rendered scenes
+Run time on 2 cores: full ~22 min with the scenes cached, quick ~6 min. The rendered scenes
 are made once with :mod:`core.synth` and cached in ``bench/.data/accuracy/`` (two at a time;
-generating all 15 takes ~14 min wall on 2 cores, the quick subset ~8 min).
+generating all 19 takes ~17 min wall on 2 cores, the quick subset ~10 min).
 
 The scenes render a frame at least every :data:`MAX_FRAME_INTERVAL_US` while the camera moves
 (``SynthConfig.max_frame_interval_us``), so the simulated event timing is finer than the 0.2 ms
@@ -18,7 +18,7 @@ Sections
    1.0 m/s, 3 seeds (1 in quick), offsets from the published E-POSE table (``time_shifts.csv``):
    our method (Poisson maximum likelihood refinement, the default; NCC refinement; parabolic
    peak only; weighted log fit; speed proxy; 1-10 ms bins) against the E-POSE minima-matching
-   baseline.
+   baseline. Then at 0.1 m/s on 24 s and 40 s scenes (accuracy against sequence length).
 2. **Skew** on 20 s sequences: rate-level scenes (events drawn with a rate proportional to the
    camera's image speed, ~330 k ev/s) with skews up to ±1000 ppm at 4 / 8 / 16 segments, and
    rendered 20 s scenes with -150 / +200 ppm.
@@ -274,6 +274,44 @@ def bench_sync(scenes: dict, speeds, seeds):
     return results, variants
 
 
+def bench_slow(scenes: dict, names: list):
+    """Offset error at 0.1 m/s against sequence length: the estimate rests on where motion
+    starts and stops, and a slow 8 s sequence holds only ~3 gradual moves."""
+    from core import sync
+
+    by_len: dict = {}
+    for n in names:
+        dur = int(n.split("_d")[1].split("_")[0])
+        folder = scenes[n]
+        truth = load_ground_truth(folder)["clock"]["offset_us"]
+        scene = Scene.open(folder)
+        for label, kw in (("ours 1 ms ML, bins shifted*", {}), ("ours 1 ms NCC, bins shifted*", dict(refine="ncc"))):
+            for ph in PHASES_US:
+                t = time.perf_counter()
+                r = rebinned_sync(scene, ph, **kw)
+                by_len.setdefault((label, dur), []).append(
+                    (None if r.offset_us is None else r.offset_us - truth, time.perf_counter() - t))
+        t = time.perf_counter()
+        r = sync.sync_minima_baseline(scene)
+        by_len.setdefault(("E-POSE minima baseline", dur), []).append(
+            (None if r.offset_us is None else r.offset_us - truth, time.perf_counter() - t))
+        scene.close()
+    durs = sorted({d for _, d in by_len})
+    rows = []
+    for label in ("ours 1 ms ML, bins shifted*", "ours 1 ms NCC, bins shifted*", "E-POSE minima baseline"):
+        row = [label]
+        for d in durs:
+            v = by_len.get((label, d), [])
+            errs = [e for e, _ in v]
+            m, mx = med_max([e / 1e3 for e in errs if e is not None])
+            row.append(f"{fmt(m)} / {fmt(mx)} ({sum(e is not None for e in errs)}/{len(v)})")
+        row.append(fmt(np.median([rt for d in durs for _, rt in by_len.get((label, d), [])]), 3))
+        rows.append(row)
+    table("SYNC at 0.1 m/s against sequence length: offset error |ms| median / max (reliable/runs); rendered "
+          "87x65 scenes, seeds x bin shifts", ["method"] + [f"{d} s" for d in durs] + ["runtime s (median)"], rows)
+    return by_len
+
+
 def bench_skew(n_seeds, rendered_skew):
     from core import sync
 
@@ -508,6 +546,12 @@ def scene_jobs(quick: bool):
         jobs["skew20_b"] = SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5,
                                        duration_s=20.0, offset_us=pick[3], skew_ppm=200.0, seed=4, camera=low,
                                        **RENDER)
+    for dur in ((24,) if quick else (24, 40)):          # slow motion: accuracy against sequence length
+        for seed in ((0,) if quick else (0, 1)):
+            jobs[f"slow_v0.1_d{dur}_s{seed}"] = SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B",
+                                                           speed_mps=0.1, duration_s=float(dur),
+                                                           offset_us=pick[(2 + seed) % len(pick)], seed=10 + seed,
+                                                           camera=low, **RENDER)
     ref_seeds = (0,) if quick else (0, 1)
     for seed in ref_seeds:
         jobs[f"refine_box_s{seed}"] = SynthConfig(objects=("box", "flatbox"), trajectory="B", speed_mps=0.5,
@@ -561,6 +605,7 @@ def _run(args, docs, tee):
           f"scenes cached in {DATA}")
 
     sync_results, sync_variants = bench_sync(scenes, speeds, seeds)
+    bench_slow(scenes, [n for n in jobs if n.startswith("slow_")])
     skew_pts = bench_skew(3 if args.quick else 6, [scenes[n] for n in jobs if n.startswith("skew20")])
     bench_unreliable()
     ref_folders = [scenes[n] for n in jobs if n.startswith("refine_")]
