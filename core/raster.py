@@ -391,6 +391,65 @@ def _tile_rows(tris: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 # ---------------------------------------------------------------------------- rasteriser
+def _edge_coefficients(xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Edge functions of the triangles ``idx`` ((3, n) vertex indices into ``xy``, complex64
+    normalised coordinates): float32 ``(7, n)`` rows ``ax, ay, C0, C1, C2, C3, |S|`` with
+    ``E0 = C0 dx + C1 dy`` and ``E2 = C2 dx + C3 dy`` for ``d = p - a`` (see
+    :meth:`Rasterizer._eval_tris`); ``|S| = -1`` for zero-area triangles (never inside)."""
+    P3 = xy.take(idx)                                            # (3, n) complex64
+    X3, Y3 = P3.real, P3.imag
+    coef = np.empty((7, idx.shape[1]), dtype=np.float32)
+    coef[0] = X3[0]
+    coef[1] = Y3[0]
+    np.subtract(Y3[0], Y3[1], out=coef[2])
+    np.subtract(X3[1], X3[0], out=coef[3])
+    np.subtract(Y3[2], Y3[0], out=coef[4])
+    np.subtract(X3[0], X3[2], out=coef[5])
+    area = coef[3] * coef[4]
+    area -= coef[2] * coef[5]
+    coef[2:6] *= np.sign(area)
+    aa = np.abs(area)
+    aa[area == 0] = -1.0
+    coef[6] = aa
+    return coef
+
+
+def _edge_test(D: np.ndarray, coef: np.ndarray):
+    """``(E0, E2, inside)`` of pixel rays ``D`` (complex64) against edge coefficients whose rows
+    broadcast against ``D``: inside the closed triangle iff ``E0 >= 0``, ``E2 >= 0`` and
+    ``E0 + E2 <= |S|``."""
+    dx = D.real - coef[0]
+    dy = D.imag - coef[1]
+    e0 = coef[2] * dx
+    e0 += coef[3] * dy
+    e2 = coef[4] * dx
+    e2 += coef[5] * dy
+    ins = e0 >= 0
+    ins &= e2 >= 0
+    s = e0 + e2
+    ins &= s <= coef[6]
+    return e0, e2, ins
+
+
+def _depth_keys(iz, idx, ti, p, e0, e2, aa):
+    """z-buffer keys ``float32(z) bits << 32`` of covered pairs: ``1/z`` interpolated with the
+    barycentric weights ``e2 / |S|`` (vertex b) and ``e0 / |S|`` (vertex c); pairs with
+    ``1/z <= 0`` are dropped. Returns ``(ti, p, key)``."""
+    I3 = iz.take(idx.take(ti, axis=1))                          # (3, m)
+    w_b = e2
+    w_b *= I3[1] - I3[0]
+    w_c = e0
+    w_c *= I3[2] - I3[0]
+    w_b += w_c
+    w_b /= aa
+    w_b += I3[0]                                                 # 1/z
+    pos = w_b > 0
+    if not pos.all():
+        ti, p, w_b = ti[pos], p[pos], w_b[pos]
+    key = (np.float32(1.0) / w_b).view(np.uint32).astype(np.uint64) << _SHIFT32
+    return ti, p, key
+
+
 class _VertexStage(NamedTuple):
     """Per-vertex data of one mesh (see :meth:`Rasterizer._vertex_stage`)."""
 
@@ -951,30 +1010,8 @@ class Rasterizer:
         ``E0 + E2 <= |S|``. A zero-area triangle gets ``|S| = -1`` and never passes. ``1/z`` is
         interpolated with the same weights (exact for the triangle's plane).
         """
-        P3 = xy.take(idx)                                        # (3, n) complex64
-        X3, Y3 = P3.real, P3.imag
-        ax, ay = X3[0], Y3[0]
-        C = np.empty((4, idx.shape[1]), dtype=np.float32)
-        np.subtract(ay, Y3[1], out=C[0])                         # E0 = C0 dx + C1 dy
-        np.subtract(X3[1], ax, out=C[1])
-        np.subtract(Y3[2], ay, out=C[2])                         # E2 = C2 dx + C3 dy
-        np.subtract(ax, X3[2], out=C[3])
-        area = C[1] * C[2]
-        area -= C[0] * C[3]
-        C *= np.sign(area)
-        aa = np.abs(area)
-        aa[area == 0] = -1.0
-        D = self._XY.take(pix)                                   # pixel rays (k, n)
-        dx = D.real - ax
-        dy = D.imag - ay
-        e0 = C[0] * dx
-        e0 += C[1] * dy
-        e2 = C[2] * dx
-        e2 += C[3] * dy
-        ins = e0 >= 0
-        ins &= e2 >= 0
-        s = e0 + e2
-        ins &= s <= aa
+        coef = _edge_coefficients(xy, idx)                       # (7, n), broadcast over the k pixels
+        e0, e2, ins = _edge_test(self._XY.take(pix), coef)       # pixel rays (k, n)
         f = np.flatnonzero(ins)
         if not len(f):
             return None
@@ -982,19 +1019,7 @@ class Rasterizer:
         p = pix.ravel().take(f)
         if not want_depth:
             return ti, p, None
-        I3 = iz.take(idx.take(ti, axis=1))                      # (3, m)
-        w_b = e2.ravel().take(f)
-        w_b *= I3[1] - I3[0]
-        w_c = e0.ravel().take(f)
-        w_c *= I3[2] - I3[0]
-        w_b += w_c
-        w_b /= aa.take(ti)
-        w_b += I3[0]                                             # 1/z
-        pos = w_b > 0
-        if not pos.all():
-            ti, p, w_b = ti[pos], p[pos], w_b[pos]
-        key = (np.float32(1.0) / w_b).view(np.uint32).astype(np.uint64) << _SHIFT32
-        return ti, p, key
+        return _depth_keys(iz, idx, ti, p, e0.ravel().take(f), e2.ravel().take(f), coef[6].take(ti))
 
     def _eval_boxes(self, xy: np.ndarray, iz: np.ndarray, idx: np.ndarray, corner: np.ndarray,
                     nu: np.ndarray, nv: np.ndarray, want_depth: bool):
@@ -1007,43 +1032,18 @@ class Rasterizer:
         """
         W = self.width
         m = idx.shape[1]
-        P3 = xy.take(idx)                                        # (3, m) complex64
-        X3, Y3 = P3.real, P3.imag
-        coef = np.empty((7, m), dtype=np.float32)                # per triangle, repeated per pixel
-        coef[0] = X3[0]
-        coef[1] = Y3[0]
-        np.subtract(Y3[0], Y3[1], out=coef[2])                   # E0 = C0 dx + C1 dy
-        np.subtract(X3[1], X3[0], out=coef[3])
-        np.subtract(Y3[2], Y3[0], out=coef[4])                   # E2 = C2 dx + C3 dy
-        np.subtract(X3[0], X3[2], out=coef[5])
-        area = coef[3] * coef[4] - coef[2] * coef[5]
-        coef[2:6] *= np.sign(area)
-        aa = np.abs(area)
-        aa[area == 0] = -1.0
-        coef[6] = aa
+        coef = _edge_coefficients(xy, idx)                       # per triangle, repeated per pixel
         # pixels: rows of each box, then the pixels of each row (no division per pair)
         row_tri = np.repeat(np.arange(m), nv)
         row_first = np.cumsum(nv) - nv
         row_start = corner.take(row_tri) + (np.arange(len(row_tri)) - row_first.take(row_tri)) * W
         row_len = nu.take(row_tri)
-        n = int(row_len.sum())
         pair_first = np.cumsum(row_len) - row_len
-        pix = np.arange(n, dtype=np.intp)
+        pix = np.arange(int(row_len.sum()), dtype=np.intp)
         pix += np.repeat(row_start - pair_first, row_len)
         per_tri = nu * nv
         tp = np.repeat(np.arange(m), per_tri)                    # triangle of each pair
-        E = np.repeat(coef, per_tri, axis=1)                     # (7, n): sequential copies
-        D = self._XY.take(pix)
-        dx = D.real - E[0]
-        dy = D.imag - E[1]
-        e0 = E[2] * dx
-        e0 += E[3] * dy
-        e2 = E[4] * dx
-        e2 += E[5] * dy
-        ins = e0 >= 0
-        ins &= e2 >= 0
-        ssum = e0 + e2
-        ins &= ssum <= E[6]
+        e0, e2, ins = _edge_test(self._XY.take(pix), np.repeat(coef, per_tri, axis=1))
         f = np.flatnonzero(ins)
         if not len(f):
             return None
@@ -1051,19 +1051,7 @@ class Rasterizer:
         p = pix.take(f)
         if not want_depth:
             return ti, p, None
-        I3 = iz.take(idx.take(ti, axis=1))                      # (3, k)
-        w_b = e2.take(f)
-        w_b *= I3[1] - I3[0]
-        w_c = e0.take(f)
-        w_c *= I3[2] - I3[0]
-        w_b += w_c
-        w_b /= aa.take(ti)
-        w_b += I3[0]                                             # 1/z
-        pos = w_b > 0
-        if not pos.all():
-            ti, p, w_b = ti[pos], p[pos], w_b[pos]
-        key = (np.float32(1.0) / w_b).view(np.uint32).astype(np.uint64) << _SHIFT32
-        return ti, p, key
+        return _depth_keys(iz, idx, ti, p, e0.take(f), e2.take(f), coef[6].take(ti))
 
     def _tile_path(self, V, FT, t, base, want_depth, results):
         """Triangles ``t`` (face indices) crossing the near plane or reaching outside the
