@@ -49,10 +49,11 @@ minima of the smoothed event rate to minima of the robot speed and average the d
 
 Accuracy (``bench/accuracy.py``, ``docs/accuracy.txt``): on 8 s rendered scenes (87x65, ~50-75
 k events/s) the default estimate is within ~0.1-0.2 ms at 0.5-1.0 m/s (NCC alone: 0.2-1.2 ms);
-the skew of 20 s sequences is within a few ppm. At 0.1 m/s an 8 s sequence holds only ~3
-moves with slow, gradual starts and stops, and both the ML and the NCC estimates are off by
-several ms there: use long sequences, and check with :func:`core.refine.refine_offset`
-(event/edge alignment) when the object poses are right.
+the skew of 20 s sequences is within a few ppm. At 0.1 m/s both estimates are off by several
+ms (8 s: 8.4 ms, 40 s: 3.9 ms, a 20 s full-resolution scene 0.9-5.3 ms): the events lag the
+start of each slow move, a bias that grows as 1/speed and that the rate model does not
+capture yet. Check slow sequences with :func:`core.refine.refine_offset` (event/edge
+alignment) when the object poses are right.
 
 Units: times are int64 µs on the event clock (``t_ref_us`` = first event), offsets µs, skew ppm.
 """
@@ -693,6 +694,54 @@ def _refine_offset(prob, sel, offset0, skew, half_width_us, xatol=1.0) -> tuple[
     return float(res.x), float(-res.fun)
 
 
+def _segment_offset(prob: "_Problem", sel: np.ndarray, t0_us: int, t1_us: int, centre_us: float, skew_ppm: float,
+                    half_range_us: float, guard_bins: int, refine, ok: bool) -> SegmentOffset:
+    """Offset of one segment (bins ``sel``, events ``[t0_us, t1_us)``): NCC scan around
+    ``centre_us`` at ``skew_ppm``, then the refinement asked for. ``used`` is False when the segment
+    has too little motion (``ok``) or no clear correlation peak. The offset is the local one, at
+    the segment's centre."""
+    tc = (t0_us + t1_us) // 2
+    seg = SegmentOffset(t0_us, t1_us, tc, None, float("nan"), False)
+    if not ok:
+        return seg
+    bin_us = prob.bin_us
+    lags, ncc, lo, hi = _search(prob, sel, centre_us, skew_ppm, half_range_us, guard_bins, 0.8)
+    pa = _peak_analysis(ncc, bin_us, lo, hi)
+    if pa is None or pa[5] or pa[2] < MIN_PEAK_NCC:
+        return seg
+    o = lags[pa[0]] + pa[1] * (lags[1] - lags[0])
+    if refine:
+        o, _ = _refine_offset(prob, sel, o, skew_ppm, 1.5 * bin_us)
+    if refine == "ml":
+        o_ml, _ = _ml_offset(prob, sel, o, skew_ppm, max(1.5 * bin_us, 8000.0))
+        if o_ml is not None:
+            o = o_ml
+    # offsets are measured as "clock offset at t_ref"; convert to the local offset
+    seg.offset_us = float(o + skew_ppm * 1e-6 * (tc - prob.prior.t_ref_us))
+    seg.peak = float(pa[2])
+    seg.used = True
+    return seg
+
+
+def _robust_line(used: list, t_ref_us: int, bin_us: int):
+    """Theil-Sen line through the segment offsets (µs against s since ``t_ref_us``), refitted on
+    the inliers (3 MAD, at least a quarter bin); outliers get ``used = False``. Returns
+    ``(slope ppm, offset at t_ref µs, half 90 % CI ppm, inliers)`` or None below 3 segments."""
+    if len(used) < 3:
+        return None
+    x = np.array([(s.t_center_us - t_ref_us) * 1e-6 for s in used])   # s
+    y = np.array([s.offset_us for s in used])                           # µs
+    slope, icpt, lo_s, hi_s = stats.theilslopes(y, x, 0.9)
+    resid = y - (icpt + slope * x)
+    mad = 1.4826 * np.median(np.abs(resid - np.median(resid)))
+    inl = np.abs(resid) <= max(3 * mad, 0.25 * bin_us)
+    for s, ok in zip(used, inl):
+        s.used = bool(ok)
+    if inl.sum() >= 3:
+        slope, icpt, lo_s, hi_s = stats.theilslopes(y[inl], x[inl], 0.9)
+    return float(slope), float(icpt), 0.5 * (hi_s - lo_s), int(inl.sum())
+
+
 def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: ClockModel, *,
                    range_us: float = 500_000, smooth_us: float | None = None, transform: str = "log",
                    estimate_skew: bool | str = "auto", n_segments: int | None = None,
@@ -815,7 +864,7 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
         # pass 1 measures the segments with the prior skew, centred on the global offset; when
         # the slope found differs from it, pass 2 measures them again with that slope (a drift
         # of ~1000 ppm over a 5 s segment would otherwise smear each segment's own fit)
-        seg_skew, seg_centre, fit_line, best = skew, offset, None, None
+        seg_skew, seg_centre, best = skew, offset, None
         for pass_no in (1, 2):
             segments = []
             for j in range(n_seg):
@@ -823,42 +872,15 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
                 sel = np.zeros(len(starts), bool)
                 sel[edges[j]:edges[j + 1]] = True
                 sel &= prob.me
-                t0s = int(starts[edges[j]])
-                t1s = int(starts[edges[j + 1] - 1]) + bin_us
-                tc = (t0s + t1s) // 2
-                seg = SegmentOffset(t0s, t1s, tc, None, float("nan"), False)
-                if sel.sum() >= 20 * sigma_bins and np.ptp(p_at[sel]) > 0:
-                    l2, c2, lo2, hi2 = _search(prob, sel, seg_centre, seg_skew, seg_range, guard, 0.8)
-                    pa2 = _peak_analysis(c2, bin_us, lo2, hi2)
-                    if pa2 is not None and not pa2[5] and pa2[2] >= MIN_PEAK_NCC:
-                        o_seg = l2[pa2[0]] + pa2[1] * (l2[1] - l2[0])
-                        if refine:
-                            o_seg, _ = _refine_offset(prob, sel, o_seg, seg_skew, 1.5 * bin_us)
-                        if refine == "ml":
-                            o_ml, _ = _ml_offset(prob, sel, o_seg, seg_skew, max(1.5 * bin_us, 8000.0))
-                            if o_ml is not None:
-                                o_seg = o_ml
-                        # offsets are measured as "clock offset at t_ref"; convert to the local offset
-                        seg.offset_us = float(o_seg + seg_skew * 1e-6 * (tc - t_ref))
-                        seg.peak = float(pa2[2])
-                        seg.used = True
-                segments.append(seg)
+                segments.append(_segment_offset(prob, sel, int(starts[edges[j]]), int(starts[edges[j + 1] - 1]) + bin_us,
+                                                seg_centre, seg_skew, seg_range, guard, refine,
+                                                ok=bool(sel.sum() >= 20 * sigma_bins and np.ptp(p_at[sel]) > 0)))
                 if progress is not None:
                     progress(0.3 + 0.25 * (pass_no - 1) + 0.25 * (j + 1) / n_seg, f"segment {j + 1}/{n_seg}")
             used = [s for s in segments if s.used]
-            fit_line = None
-            if len(used) >= 3:
-                x = np.array([(s.t_center_us - t_ref) * 1e-6 for s in used])   # s
-                y = np.array([s.offset_us for s in used])                        # µs
-                slope, icpt, lo_s, hi_s = stats.theilslopes(y, x, 0.9)
-                resid = y - (icpt + slope * x)
-                mad = 1.4826 * np.median(np.abs(resid - np.median(resid)))
-                inl = np.abs(resid) <= max(3 * mad, 0.25 * bin_us)
-                for s, ok in zip(used, inl):
-                    s.used = bool(ok)
-                if inl.sum() >= 3:
-                    slope, icpt, lo_s, hi_s = stats.theilslopes(y[inl], x[inl], 0.9)
-                fit_line = (float(slope), float(icpt), 0.5 * (hi_s - lo_s), int(inl.sum()), pass_no, segments)
+            fit_line = _robust_line(used, t_ref, bin_us)
+            if fit_line is not None:
+                fit_line = (*fit_line, pass_no, segments)
                 if best is None or fit_line[2] < best[2]:     # keep the better determined line
                     best = fit_line
             if (pass_no == 2 or fit_line is None or not abs(fit_line[0]) <= max_skew_ppm
