@@ -350,9 +350,7 @@ def _render_times(traj: Trajectory, clock: ClockModel, e0: int, e1: int, f_px: f
     k = np.searchsorted(seg_ev, grid, side="left") - 1       # pose interval holding each noise step
     in_motion = (k >= 0) & (k < len(moving)) & moving[np.clip(k, 0, len(moving) - 1)]
     starts = seg_ev[:-1][moving & ~np.r_[False, moving[:-1]]]  # where each run of motion begins
-    render = np.unique(np.concatenate([np.rint(np.concatenate(times)).astype(np.int64) if times
-                                       else np.zeros(0, np.int64), grid[in_motion],
-                                       np.rint(starts).astype(np.int64)]))
+    render = np.unique(np.rint(np.concatenate(times + [grid[in_motion], starts])).astype(np.int64))
     render = render[(render > e0) & (render <= e1)]
     steps = np.union1d(render, grid)
     return steps, np.isin(steps, render)
