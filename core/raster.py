@@ -434,7 +434,7 @@ def _edge_test(D: np.ndarray, coef: np.ndarray):
 def _depth_keys(iz, idx, ti, p, e0, e2, aa):
     """z-buffer keys ``float32(z) bits << 32`` of covered pairs: ``1/z`` interpolated with the
     barycentric weights ``e2 / |S|`` (vertex b) and ``e0 / |S|`` (vertex c); pairs with
-    ``1/z <= 0`` are dropped. Returns ``(ti, p, key)``."""
+    ``1/z <= 0`` are dropped. ``e0`` and ``e2`` are overwritten. Returns ``(ti, p, key)``."""
     I3 = iz.take(idx.take(ti, axis=1))                          # (3, m)
     w_b = e2
     w_b *= I3[1] - I3[0]
