@@ -206,12 +206,24 @@ def med_max(v):
 PHASES_US = (137, 250, 500, 731)
 
 
+_TIMES: dict = {}
+
+
+def _event_times(scene) -> np.ndarray:
+    """All event times of a scene, read once per events file (every variant and bin shift rebins them)."""
+    key = str(scene.manifest.events_path)
+    if key not in _TIMES:
+        _TIMES.clear()                       # one scene at a time: keep memory flat
+        _TIMES[key] = scene.events.read(0, scene.events.n_events).t
+    return _TIMES[key]
+
+
 def rebinned_sync(scene, phase_us, bin_us=1000, **kw):
     """:func:`core.sync.estimate_clock` on the scene's events binned from ``phase_us`` after the
     first event (``EventStore.rate`` bins start at the first event)."""
     from core import sync
 
-    t = scene.events.read(0, scene.events.n_events).t
+    t = _event_times(scene)
     edges = np.arange(t[0] + phase_us - bin_us, t[-1] + bin_us, bin_us, dtype=np.int64)
     counts, _ = np.histogram(t, bins=edges)
     return sync.estimate_clock(edges[:-1], counts, bin_us, sync.scene_motion_proxy(scene), scene.clock, **kw)
