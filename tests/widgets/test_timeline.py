@@ -2,6 +2,7 @@
 import time
 
 import numpy as np
+import pyqtgraph as pg
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
@@ -47,13 +48,22 @@ def drag(qtbot, widget, points):
     """Press, move with the left button held (QTest moves carry no buttons), release.
 
     ``points`` are QPoints or callables returning one; callables are evaluated when the event is
-    sent, so a layout that settles during the drag (axis widths, under load) cannot skew the target."""
+    sent, so a layout that settles during the drag (axis widths, under load) cannot skew the target.
+    Moves are spaced by pyqtgraph's ``mouseRateLimit`` interval, as a real mouse's are: its scene
+    drops moves that come sooner, and if every move after a first short one is dropped the drag
+    never starts and the release becomes a click where the button went down (a CI flake that
+    showed up whenever the machine was fast)."""
     E = QtCore.QEvent
+    rate = pg.getConfigOption("mouseRateLimit")
+    gap_s = 1.0 / rate + 0.002 if rate > 0 else 0.0
     at = [p if callable(p) else (lambda p=p: p) for p in points]
     _mouse(widget, E.MouseButtonPress, at[0](), LEFT, LEFT)
     for p in at[1:]:
+        sent = time.perf_counter()
         _mouse(widget, E.MouseMove, p(), QtCore.Qt.NoButton, LEFT)
         QtWidgets.QApplication.processEvents()
+        while time.perf_counter() - sent < gap_s:
+            QtWidgets.QApplication.processEvents(QtCore.QEventLoop.AllEvents, 1)
     _mouse(widget, E.MouseButtonRelease, at[-1](), LEFT, QtCore.Qt.NoButton)
     QtWidgets.QApplication.processEvents()
 
