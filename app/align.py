@@ -11,11 +11,22 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
+from core.sync import SLOW_STD_NOTE_US
+
 from .workers import Job, progress_dialog
 
 
 def _fmt_ms(us) -> str:
     return "–" if us is None else f"{us / 1000.0:+.3f} ms"
+
+
+def _fmt_std(std_us) -> str:
+    """`` ± x ms (1σ)`` for a sync result's standard error ('' when none was computed)."""
+    if std_us is None:
+        return ""
+    if not np.isfinite(std_us):
+        return "  (not pinned by the event rate)"
+    return f"  ± {std_us / 1000.0:.3f} ms (1σ)"
 
 
 def _accept_cancel(dialog: QtWidgets.QDialog, layout, enabled: bool) -> QtWidgets.QPushButton:
@@ -53,12 +64,18 @@ class SyncDialog(QtWidgets.QDialog):
         p.addItem(pg.InfiniteLine(current_offset_us * 1e-6, angle=90,
                                   pen=pg.mkPen((120, 120, 120), style=QtCore.Qt.DashLine), label="current",
                                   labelOpts={"position": 0.1, "color": (90, 90, 90)}))
+        if result.offset_us is not None and result.offset_std_us is not None and np.isfinite(result.offset_std_us):
+            half = result.offset_std_us * 1e-6
+            self.std_band = pg.LinearRegionItem((result.offset_us * 1e-6 - half, result.offset_us * 1e-6 + half),
+                                                movable=False, brush=pg.mkBrush(200, 30, 30, 40),
+                                                pen=pg.mkPen(None))
+            p.addItem(self.std_band)
         if result.offset_us is not None:
             p.addItem(pg.InfiniteLine(result.offset_us * 1e-6, angle=90, pen=pg.mkPen((200, 30, 30), width=2),
                                       label="estimate", labelOpts={"position": 0.9, "color": (200, 30, 30)}))
         lay.addWidget(self.plot, 1)
         rows = [("current offset", _fmt_ms(current_offset_us)),
-                ("estimated offset", _fmt_ms(result.offset_us)),
+                ("estimated offset", _fmt_ms(result.offset_us) + _fmt_std(result.offset_std_us)),
                 ("current skew", f"{current_skew_ppm:+.1f} ppm"),
                 ("estimated skew", "kept (not estimated)" if result.skew_ppm is None else f"{result.skew_ppm:+.1f} ppm"),
                 ("confidence", f"{result.confidence:.2f}  (peak NCC {result.peak:.2f}, second peak "
@@ -68,10 +85,19 @@ class SyncDialog(QtWidgets.QDialog):
         for k, v in rows:
             form.addRow(k, QtWidgets.QLabel(v))
         lay.addLayout(form)
-        self.verdict = QtWidgets.QLabel(
-            "<b>Reliable estimate.</b> Accept applies it as one undo step." if result.reliable else
-            f"<b style='color:#b00'>No reliable estimate:</b> {result.reason}. Keep the current clock "
-            "and correct by hand.")
+        std = result.offset_std_us
+        loose = std is not None and not std <= SLOW_STD_NOTE_US
+        if not result.reliable:
+            verdict = (f"<b style='color:#b00'>No reliable estimate:</b> {result.reason}. Keep the current clock "
+                       "and correct by hand.")
+        elif loose:
+            verdict = ("<b style='color:#a60'>Reliable peak, loose timing:</b> the event rate pins the offset only to "
+                       + (f"±{std / 1000:.1f} ms" if np.isfinite(std) else "more than ±30 ms")
+                       + " (few or gradual starts and stops). Check it on the event frames, or refine the offset "
+                         "from edges once the poses are right. Accept applies it as one undo step.")
+        else:
+            verdict = "<b>Reliable estimate.</b> Accept applies it as one undo step."
+        self.verdict = QtWidgets.QLabel(verdict)
         self.verdict.setWordWrap(True)
         lay.addWidget(self.verdict)
         self.accept_button = _accept_cancel(self, lay, bool(result.reliable))

@@ -8,6 +8,7 @@ each handler returns an exit status and prints exactly one JSON document on stdo
 from __future__ import annotations
 
 import json
+import math
 import sys
 
 __all__ = ["add_align_parsers", "cmd_sync", "cmd_refine", "cmd_score"]
@@ -75,7 +76,9 @@ def cmd_sync(args) -> int:
         scene.close()
     if res.reliable:
         skew = "not estimated (kept)" if res.skew_ppm is None else f"{res.skew_ppm:.2f} ppm"
-        text = (f"offset {res.offset_us} us, skew {skew}, confidence {res.confidence:.2f} "
+        std = res.offset_std_us
+        pm = "" if std is None else (f" ± {std:.0f} us (1 sigma)" if math.isfinite(std) else " (not pinned by the rate)")
+        text = (f"offset {res.offset_us} us{pm}, skew {skew}, confidence {res.confidence:.2f} "
                 f"(peak NCC {res.peak:.3f}, second {res.second_peak:.3f}) in {res.runtime_s:.2f} s")
         if corr is not None:
             text += f"\ncorrection on top of the prior: offset {corr[0]} us, skew {corr[1]:.2f} ppm"

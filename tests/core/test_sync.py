@@ -133,6 +133,57 @@ def test_offset_and_skew_on_ideal_rate(rate20):
     assert np.median(skew_err) < 10, skew_err
 
 
+def test_offset_std_is_calibrated_and_shrinks_with_the_event_count(tmp_path):
+    """``offset_std_us`` (curvature of the likelihood) against the spread of the estimates over
+    seeds: the same trajectories at two event rates 25x apart; the standard error must track the
+    actual error (RMS of error / sigma near 1) and grow as the events thin out."""
+    ratios, sig = [], {}
+    for gain in (0.4, 10.0):
+        for seed in range(6):
+            folder, truth = make_rate_scene(tmp_path / f"g{gain}_{seed}", 5.0, -40_000 + 9_000 * seed, 0.0,
+                                            seed=100 + seed, gain=gain)
+            with _Open(folder) as scene:
+                res = sync.sync_scene(scene, kind="speed")
+            assert res.reliable, res.reason
+            assert res.offset_std_us is not None and 0 < res.offset_std_us < math.inf
+            sig.setdefault(gain, []).append(res.offset_std_us)
+            ratios.append((res.offset_us - truth.offset_us) / res.offset_std_us)
+            assert res.to_json()["offset_std_us"] == pytest.approx(res.offset_std_us)
+    rms = math.sqrt(np.mean(np.square(ratios)))
+    print(f"RMS error / sigma {rms:.2f}; sigma {np.median(sig[10.0]):.0f} / {np.median(sig[0.4]):.0f} us")
+    assert 0.3 < rms < 2.5, (rms, ratios)
+    # at least the 1 / sqrt(25) of pure counting; more, as the fixed noise floor (2.5 events/ms)
+    # drowns the slow starts and stops of the sparse rate (measured ~21x)
+    scale = np.median(sig[0.4]) / np.median(sig[10.0])
+    assert 4.0 < scale < 60, (scale, sig)
+
+
+def test_loose_offset_is_flagged(tmp_path):
+    """Few events: a reliable peak, but the standard error is above a millisecond and a note
+    says so; the NCC-only path computes no standard error."""
+    folder, truth = make_rate_scene(tmp_path / "sparse", 5.0, 12_000, 0.0, seed=7, gain=0.05)
+    with _Open(folder) as scene:
+        res = sync.sync_scene(scene, kind="speed")
+        ncc = sync.sync_scene(scene, kind="speed", refine="ncc")
+    assert res.reliable, res.reason
+    assert res.offset_std_us > sync.SLOW_STD_NOTE_US
+    assert any("pins the offset only to" in n for n in res.notes), res.notes
+    assert ncc.offset_std_us is None and ncc.to_json()["offset_std_us"] is None
+
+
+def test_likelihood_std_follows_the_envelope_not_the_ripple():
+    """A quadratic log-likelihood (sigma 3 ms) with a 4 ms ripple of 3 log units: the standard
+    error is the envelope's, not the ripple's sharp local curvature; flat or upward: inf."""
+    x = np.arange(-30_000, 30_001, 250.0)
+    env = -0.5 * (x / 3000.0) ** 2
+    ripple = 1.5 * np.cos(2 * np.pi * x / 4000.0)
+    std = sync._likelihood_std_us(x, env + ripple, 0.0, 1000)
+    assert 2400 < std < 3600, std
+    assert sync._likelihood_std_us(x, env, 0.0, 1000) == pytest.approx(3000, rel=1e-6)
+    assert sync._likelihood_std_us(x, np.zeros_like(x), 0.0, 1000) == math.inf
+    assert sync._likelihood_std_us(x, +1e-9 * x**2, 0.0, 1000) == math.inf
+
+
 class _Open:
     """``with _Open(folder) as scene``: a scene closed afterwards."""
 
