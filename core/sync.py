@@ -83,6 +83,7 @@ MAX_PEAK_HWHM_FRACTION = 0.8  # main lobe half width above this fraction of the 
 MIN_DURATION_US = 300_000     # shorter sequences: "too short"
 MIN_MOTION_PX_S = 5.0         # largest image speed below this: "static camera"
 DEFAULT_DEPTH_M = 0.5         # scene distance when no object gives one
+PROXY_SUB_US = 250.0          # the motion proxy is sampled at least this finely (a smooth curve, not a staircase)
 SLOW_STD_NOTE_US = 1000.0     # offset standard error above this: a note says how loosely the rate pins it
 STD_SCAN_FACTOR = 3.0         # the likelihood scan for the standard error reaches this x the ML search half width
 
@@ -152,7 +153,7 @@ def _ray_grid(camera, n_u: int = 8, n_v: int = 6) -> np.ndarray:
 
 
 def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, rays_xy=None,
-                 depth_m=DEFAULT_DEPTH_M, kind: str = "flow", chunk: int = 20000) -> MotionProxy:
+                 depth_m=DEFAULT_DEPTH_M, kind: str = "flow", chunk: int = 20000, smooth: bool = True) -> MotionProxy:
     """Image-motion proxy of a trajectory of camera poses ``T_base_cam``.
 
     Parameters
@@ -169,6 +170,9 @@ def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, 
         ``"flow"``: mean over ``rays_xy`` of the optical-flow magnitude of a fronto-parallel
         scene at ``depth_m`` (rotation and translation combined with their true geometry);
         ``"speed"``: ``fx * (|v| / z + |w|)``.
+    smooth : bool
+        Resample the per-interval speeds as a piecewise-linear curve (:func:`_smooth_proxy`,
+        default); False keeps the staircase of interval means.
 
     Notes
     -----
@@ -194,7 +198,7 @@ def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, 
     z = np.clip(np.nan_to_num(0.5 * (z[:-1] + z[1:]), nan=DEFAULT_DEPTH_M), 0.02, 1e3)
     if kind == "speed":
         val = fx * (np.linalg.norm(v, axis=1) / z + np.linalg.norm(w, axis=1))
-        return MotionProxy(int(t[0]), knots, val, kind)
+        return _smooth_proxy(int(t[0]), knots, val, kind) if smooth else MotionProxy(int(t[0]), knots, val, kind)
     g = np.zeros((1, 2)) if rays_xy is None else np.asarray(rays_xy, dtype=np.float64).reshape(-1, 2)
     x, y = g[:, 0][None], g[:, 1][None]
     val = np.empty(n - 1)
@@ -205,7 +209,31 @@ def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, 
         du = fx * ((x * vz - vx) + x * y * wx - (1 + x * x) * wy + y * wz)
         dv = fy * ((y * vz - vy) + (1 + y * y) * wx - x * y * wy - x * wz)
         val[s] = np.hypot(du, dv).mean(axis=1)
-    return MotionProxy(int(t[0]), knots, val, kind)
+    return _smooth_proxy(int(t[0]), knots, val, kind) if smooth else MotionProxy(int(t[0]), knots, val, kind)
+
+
+def _smooth_proxy(t0_us: int, knots_us: np.ndarray, value: np.ndarray, kind: str,
+                  sub_us: float = PROXY_SUB_US) -> MotionProxy:
+    """The per-interval speeds as a smooth curve: linear between the intervals' midpoints,
+    sampled on sub-intervals of at most ``sub_us`` (up to 16 per pose interval).
+
+    Finite differences of the poses give each interval's *mean* speed, so the raw proxy is a
+    staircase with a step at every pose sample, while a real arm (and the simulator) moves
+    smoothly. Against a smooth event rate the staircase puts a ripple with the pose period
+    (4 ms at 250 Hz) into the likelihood of the offset, which then locks onto a wrong ripple
+    crest; the piecewise-linear curve through the midpoints follows the true speed to second
+    order. Intervals stay exact where the speed is zero on both sides (dwells stay zero)."""
+    dt = np.diff(knots_us)
+    if len(value) < 2:
+        return MotionProxy(t0_us, knots_us, value, kind)
+    n_sub = np.clip(np.ceil(dt / sub_us), 1, 16).astype(np.int64)
+    start = np.repeat(knots_us[:-1], n_sub)
+    j = np.arange(int(n_sub.sum())) - np.repeat(np.cumsum(n_sub) - n_sub, n_sub)      # piece in its interval
+    width = np.repeat(dt / n_sub, n_sub)
+    fine_knots = np.append(start + j * width, knots_us[-1])
+    mids = 0.5 * (knots_us[:-1] + knots_us[1:])
+    fine_val = np.interp(start + (j + 0.5) * width, mids, value)
+    return MotionProxy(t0_us, fine_knots, np.maximum(fine_val, 0.0), kind)
 
 
 def _camera_trajectory(scene) -> Trajectory:

@@ -3,7 +3,9 @@
 A DAVIS346 event camera on a robot arm moves over a table with objects. The camera follows
 trajectory **A** (translation only) or **B** (translation and rotation, looking at the objects)
 through random waypoints, with minimum-jerk segments that peak at the requested speed and stops
-between them (the speed minima that clock synchronisation relies on). Frames are rendered with
+between them (the speed minima that clock synchronisation relies on). The rendered motion is
+sampled finely (``motion_rate_hz``); the recorded trajectory holds its samples at the robot's
+``pose_rate_hz``, so interpolating it is an approximation, as for a real arm. Frames are rendered with
 the z-buffer rasteriser (Lambertian shading, procedural 3D texture on objects and table so there
 are edges inside objects too), and events are simulated from the log intensity
 (:mod:`core.evsim`).
@@ -71,7 +73,8 @@ class SynthConfig:
     pose_error_mm: float = 0.0
     pose_error_deg: float = 0.0
     seed: int = 0
-    pose_rate_hz: float = 250.0
+    pose_rate_hz: float = 250.0      # the recorded trajectory's sample rate
+    motion_rate_hz: float = 4000.0   # the rendered (true) motion's sample rate: smooth at the event time scale
     max_px_per_frame: float = 1.0
     max_frame_interval_us: int = 0   # > 0: render at least this often while moving (finer event timing)
     sensor: SensorParams = field(default_factory=SensorParams)
@@ -88,6 +91,8 @@ class SynthConfig:
             raise ValueError("objects: at least one object is needed")
         if len(set(self.objects)) != len(self.objects):
             raise ValueError(f"objects: names must be unique, got {list(self.objects)}")
+        if not (0 < self.pose_rate_hz <= self.motion_rate_hz):
+            raise ValueError(f"pose_rate_hz / motion_rate_hz: expected 0 < {self.pose_rate_hz} <= {self.motion_rate_hz}")
         if not self.max_px_per_frame > 0:
             raise ValueError(f"max_px_per_frame: expected > 0, got {self.max_px_per_frame}")
         if self.max_frame_interval_us < 0:
@@ -174,11 +179,33 @@ def _min_jerk(tau: np.ndarray) -> np.ndarray:
     return tau**3 * (10 - 15 * tau + 6 * tau**2)
 
 
-def make_trajectory(cfg: SynthConfig, rng: np.random.Generator, margin_s: float) -> tuple[Trajectory, list]:
-    """Camera trajectory ``T_base_cam`` on the pose clock covering ``duration + 2 margin``.
+@dataclass
+class Motion:
+    """The camera's motion in a synthetic scene.
 
-    Returns the trajectory and the list of (start, end) pose times of the moving segments.
+    Attributes
+    ----------
+    recorded : Trajectory
+        What the robot reports: samples of ``true`` on a regular pose clock at ``pose_rate_hz``
+        (written to ``trajectory.csv``; readers interpolate it with lerp + slerp).
+    true : Trajectory
+        The motion that is rendered: the minimum-jerk moves sampled at ``motion_rate_hz``, so the
+        image moves smoothly, as under a real arm. (Rendering the recorded samples instead makes the
+        camera's speed a staircase with a step at every pose sample, and the event rate shows it: an
+        artificial 4 ms ripple in the likelihood of the clock offset at 250 Hz that no real
+        recording has.)
+    segments : list of (int, int)
+        Pose-clock start and end of each move.
     """
+
+    recorded: Trajectory
+    true: Trajectory
+    segments: list
+
+
+def make_motion(cfg: SynthConfig, rng: np.random.Generator, margin_s: float) -> Motion:
+    """Camera motion ``T_base_cam`` on the pose clock covering ``duration + 2 margin``: moves
+    between random waypoints with minimum-jerk profiles (peak speed ``speed_mps``) and dwells."""
     c = TABLE_CENTRE_BASE
 
     def sample_position(d_range=(0.33, 0.5)):
@@ -200,14 +227,9 @@ def make_trajectory(cfg: SynthConfig, rng: np.random.Generator, margin_s: float)
             return p, _look_at(p, c + rng.normal(scale=0.02, size=3), math.radians(rng.uniform(-12, 12)))
 
     total_s = cfg.duration_s + 2 * margin_s
-    knots_t, knots_p, knots_R, segments = [0.0], [], [], []
     p, R = waypoint()
-    knots_p.append(p)
-    knots_R.append(R)
-    t = margin_s * 0.7
-    knots_t.append(t)
-    knots_p.append(p)
-    knots_R.append(R)
+    t = round(margin_s * 0.7 * 1e6) * 1e-6
+    knots_t, knots_p, knots_R, segments = [np.array([0.0, t])], [np.array([p, p])], [Rotation.from_matrix([R, R])], []
     while t < total_s:
         p_next, R_next = waypoint()
         length = float(np.linalg.norm(p_next - p))
@@ -215,29 +237,40 @@ def make_trajectory(cfg: SynthConfig, rng: np.random.Generator, margin_s: float)
             continue
         T_seg = 1.875 * length / cfg.speed_mps  # min-jerk peak speed = 1.875 L / T
         segments.append((t, t + T_seg))
-        taus = np.linspace(0, 1, max(int(T_seg * cfg.pose_rate_hz), 2) + 1)[1:]
-        slerp = Slerp([0.0, 1.0], Rotation.from_matrix([R, R_next]))
-        for tau in taus:
-            s = float(_min_jerk(tau))
-            knots_t.append(t + tau * T_seg)
-            knots_p.append(p + s * (p_next - p))
-            knots_R.append(slerp([s]).as_matrix()[0])
-        t += T_seg
-        dwell = rng.uniform(0.15, 0.45)
-        t += dwell
-        knots_t.append(t)
-        knots_p.append(p_next)
-        knots_R.append(R_next)
+        taus = np.linspace(0, 1, max(int(T_seg * cfg.motion_rate_hz), 2) + 1)[1:]
+        # whole-µs knot times, and the profile evaluated at exactly those times (rounding after
+        # evaluating would add a 0.2 % jitter to the speed between 250 µs knots)
+        t_knot = np.rint((t + taus * T_seg) * 1e6) * 1e-6
+        s = np.clip(_min_jerk(np.clip((t_knot - t) / T_seg, 0.0, 1.0)), 0.0, 1.0)
+        knots_t.append(t_knot)
+        knots_p.append(p + s[:, None] * (p_next - p))
+        knots_R.append(Slerp([0.0, 1.0], Rotation.from_matrix([R, R_next]))(s))
+        t = float(t_knot[-1])
+        t = round((t + rng.uniform(0.15, 0.45)) * 1e6) * 1e-6     # dwell
+        knots_t.append(np.array([t]))
+        knots_p.append(p_next[None])
+        knots_R.append(Rotation.from_matrix([R_next]))
         p, R = p_next, R_next
+    kt_us = np.concatenate(knots_t) * 1e6
+    kp = np.concatenate(knots_p)
+    kR = Rotation.concatenate(knots_R)
+    keep = np.r_[True, np.diff(np.rint(kt_us)) > 0]      # strictly increasing whole µs
+    kt_us, kp, kR = np.rint(kt_us[keep]).astype(np.int64), kp[keep], kR[keep]
+    true = Trajectory(kt_us + POSE_CLOCK_ORIGIN_US, kp, kR.as_quat(), source="synthetic (true motion)")
     # resample on a regular pose clock grid (a robot controller publishing at pose_rate_hz)
-    knots_t = np.asarray(knots_t)
     dt_us = int(round(1e6 / cfg.pose_rate_hz))
-    t_us = np.arange(0, int(knots_t[-1] * 1e6) + 1, dt_us, dtype=np.int64)
-    rots = Slerp(knots_t * 1e6, Rotation.from_matrix(np.asarray(knots_R)))(t_us.astype(float))
-    pos = np.stack([np.interp(t_us, knots_t * 1e6, np.asarray(knots_p)[:, i]) for i in range(3)], axis=1)
-    traj = Trajectory(t_us + POSE_CLOCK_ORIGIN_US, pos, rots.as_quat(), source="synthetic")
+    t_us = np.arange(0, int(kt_us[-1]) + 1, dt_us, dtype=np.int64)
+    rots = Slerp(kt_us.astype(float), kR)(t_us.astype(float))
+    pos = np.stack([np.interp(t_us, kt_us, kp[:, i]) for i in range(3)], axis=1)
+    recorded = Trajectory(t_us + POSE_CLOCK_ORIGIN_US, pos, rots.as_quat(), source="synthetic")
     segs = [(POSE_CLOCK_ORIGIN_US + int(a * 1e6), POSE_CLOCK_ORIGIN_US + int(b * 1e6)) for a, b in segments]
-    return traj, segs
+    return Motion(recorded, true, segs)
+
+
+def make_trajectory(cfg: SynthConfig, rng: np.random.Generator, margin_s: float) -> tuple[Trajectory, list]:
+    """The recorded trajectory and the moves of :func:`make_motion`."""
+    m = make_motion(cfg, rng, margin_s)
+    return m.recorded, m.segments
 
 
 # ---------------------------------------------------------------------- rendering
@@ -374,7 +407,8 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
     models = load_objects(cfg.objects, cfg.mesh_dir)
     T_true = place_objects(models, rng)
     margin_s = max(0.3, abs(cfg.offset_us) * 1e-6 + 0.2)
-    traj, segments = make_trajectory(cfg, rng, margin_s)
+    motion = make_motion(cfg, rng, margin_s)
+    traj, segments = motion.recorded, motion.segments
     e0 = traj.t_first_us + int(margin_s * 1e6) - int(cfg.offset_us)
     e1 = e0 + int(round(cfg.duration_s * 1e6))
     clock_true = ClockModel(int(cfg.offset_us), float(cfg.skew_ppm), e0)
@@ -385,7 +419,7 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".synth-tmp", dir=out_dir.parent))
     (tmp / "models").mkdir(parents=True)
     try:
-        T0, _ = traj.at_event_time(np.array([e0]), clock_true)
+        T0, _ = motion.true.at_event_time(np.array([e0]), clock_true)
         log0, depth0 = renderer.render(T0[0])
         z_min = float(np.percentile(depth0[np.isfinite(depth0)], 1)) if np.isfinite(depth0).any() else 0.3
         steps, is_render = _render_times(traj, clock_true, e0, e1, float(camera.K[0, 0]), max(0.1, 0.8 * z_min),
@@ -397,7 +431,7 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
                                      np.array([sim.hot[0] // camera.width], np.uint16),
                                      np.array([e0], np.int64), np.array([1], np.uint8)))  # first event defines t_ref
             n_events += 1
-            Ts, valid = traj.at_event_time(steps[is_render], clock_true)
+            Ts, valid = motion.true.at_event_time(steps[is_render], clock_true)
             if not valid.all():
                 raise RuntimeError("internal: render time outside the trajectory")
             k_render = 0

@@ -8,7 +8,8 @@ from core.annotate import Annotator, Request, time_windows
 from core.events import Cancelled, EventStore
 from core.geometry import pose_error, rotation_angle
 from core.scene import Scene
-from core.synth import NOISE_STEP_US, SynthConfig, _render_times, generate, load_ground_truth, make_trajectory
+from core.synth import (NOISE_STEP_US, SynthConfig, _render_times, generate, load_ground_truth, make_motion,
+                        make_trajectory)
 from core.trajectory import ClockModel
 
 
@@ -125,8 +126,9 @@ def test_render_schedule_keeps_event_timing():
     v, w, _ = traj.speed()
     seg_ev = clock.event_time(traj.t_us)
     k = np.searchsorted(seg_ev, steps, side="left") - 1
-    moving = (v + w)[np.clip(k, 0, len(v) - 1)] > 1e-6
-    mv = (v + w) > 1e-6
+    px_s = 300.0 * (v / 0.4 + w)              # the image speed bound _render_times uses
+    moving = px_s[np.clip(k, 0, len(v) - 1)] > 1e-6
+    mv = px_s > 1e-6
     starts = seg_ev[:-1][mv & ~np.r_[False, mv[:-1]]]
     starts = np.rint(starts[(starts > e0) & (starts <= e1)]).astype(np.int64)
     assert render[moving].all(), "every step inside a motion renders a frame"
@@ -136,6 +138,33 @@ def test_render_schedule_keeps_event_timing():
     dense, r2 = _render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0, max_interval_us=1000)
     gaps = np.diff(dense[r2])
     assert r2.sum() > render.sum() and np.median(gaps) <= 1000
+
+
+def test_rendered_motion_is_smooth_and_the_recorded_poses_sample_it():
+    """The camera renders a finely sampled minimum-jerk motion; the trajectory file holds its
+    samples at the robot's rate. Its speed changes by a small step per 0.25 ms, not by a
+    staircase at every 4 ms pose sample (which put a 4 ms ripple into the sync likelihood)."""
+    cfg = SynthConfig(trajectory="B", duration_s=2.0, speed_mps=0.3)
+    m = make_motion(cfg, np.random.default_rng(5), 0.3)
+    assert np.all(np.diff(m.recorded.t_us) == 4000)
+    T_rec = m.recorded.T()
+    T_true, ok = m.true.interpolate(m.recorded.t_us)
+    assert ok.all()
+    assert np.abs(T_true[:, :3, 3] - T_rec[:, :3, 3]).max() < 1e-9
+    assert np.abs(T_true[:, :3, :3] - T_rec[:, :3, :3]).max() < 1e-9
+    # inside a move: the true motion's speed steps by at most a few percent of its peak between
+    # consecutive samples, the recorded one's by ~16x that at the 4 ms steps
+    a, b = m.segments[0]
+    sel = (m.true.t_us[:-1] > a) & (m.true.t_us[1:] < b)
+    v_true = m.true.speed()[0][sel]
+    sel_r = (m.recorded.t_us[:-1] > a) & (m.recorded.t_us[1:] < b)
+    v_rec = m.recorded.speed()[0][sel_r]
+    assert abs(v_true.max() / cfg.speed_mps - 1) < 0.01 and abs(v_rec.max() / cfg.speed_mps - 1) < 0.01
+    step_true = np.abs(np.diff(v_true)).max() / v_true.max()
+    step_rec = np.abs(np.diff(v_rec)).max() / v_rec.max()
+    assert step_true < 0.002 and step_rec > 8 * step_true, (step_true, step_rec)
+    with pytest.raises(ValueError, match="motion_rate_hz"):
+        SynthConfig(pose_rate_hz=500, motion_rate_hz=100).validate()
 
 
 def test_invalid_config_is_named():
