@@ -85,6 +85,7 @@ MIN_MOTION_PX_S = 5.0         # largest image speed below this: "static camera"
 DEFAULT_DEPTH_M = 0.5         # scene distance when no object gives one
 PROXY_SUB_US = 250.0          # the motion proxy is sampled at least this finely (a smooth curve, not a staircase)
 SLOW_STD_NOTE_US = 1000.0     # offset standard error above this: a note says how loosely the rate pins it
+SKEW_MIN_LR = 10.8            # likelihood ratio for a skew the segment line alone could not establish (p = 0.001)
 STD_SCAN_FACTOR = 3.0         # the likelihood scan for the standard error reaches this x the ML search half width
 
 
@@ -749,6 +750,29 @@ def _likelihood_std_us(grid_us: np.ndarray, loglik: np.ndarray, best_us: float, 
     return sigma * 1e3
 
 
+def _joint_skew(fit: "_PoissonFit", offset_us: float, skew_ppm: float, line: tuple, bin_us: int,
+                max_skew_ppm: float, min_lr: float = SKEW_MIN_LR):
+    """Offset and skew maximising the whole sequence's likelihood, started on a Theil-Sen line
+    whose confidence interval was too wide to accept on its own (a few segments, each with a
+    loose offset, give a good slope but a wide interval: with 4 points it spans their pairwise
+    slopes). Accepted when the likelihood ratio against the current clock (``offset_us`` at
+    ``skew_ppm``) exceeds ``min_lr`` (2 x log, chi-square with one degree of freedom: 10.8 is
+    p = 0.001) and the skew stays inside the line's interval. Returns ``(offset, skew, LR)``
+    or None."""
+    slope, icpt, half_ci = line
+    ll0 = fit.loglik(offset_us, skew_ppm)
+    o_scale, s_scale = 100.0, 10.0
+    f = lambda q: -fit.loglik(icpt + q[0] * o_scale, slope + q[1] * s_scale)
+    res = optimize.minimize(f, np.zeros(2), method="Nelder-Mead",
+                            options={"xatol": 0.002, "fatol": 1e-9, "maxiter": 600,
+                                     "initial_simplex": np.array([[0, 0], [bin_us / o_scale / 4, 0], [0, 1.0]])})
+    o1, s1 = icpt + res.x[0] * o_scale, slope + res.x[1] * s_scale
+    lr = 2.0 * (-res.fun - ll0)
+    if not (np.isfinite(lr) and lr >= min_lr and abs(s1 - slope) <= half_ci and abs(s1) <= max_skew_ppm):
+        return None
+    return float(o1), float(s1), float(lr)
+
+
 def _check_cancel(cancel):
     if cancel is not None and cancel():
         raise Cancelled("clock synchronisation cancelled")
@@ -945,6 +969,7 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
     segments: list[SegmentOffset] = []
     do_skew = (duration_us >= min_skew_duration_us) if estimate_skew == "auto" else bool(estimate_skew)
     skew_estimated = False
+    loose_line = None           # a Theil-Sen line too uncertain to accept alone: (slope, offset, half CI)
     if do_skew:
         n_seg = n_segments or int(np.clip(round(duration_us / 5e6), 4, 16))
         edges = np.linspace(0, len(starts), n_seg + 1).astype(int)
@@ -983,6 +1008,8 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
                 notes.append(f"segments: Theil-Sen skew {slope:.1f} ppm (90% CI ±{half_ci:.1f}), "
                              f"{n_in}/{n_seg} segments used" + (" (second pass)" if pass_no == 2 else ""))
             else:
+                if abs(slope) <= max_skew_ppm and math.isfinite(half_ci):
+                    loose_line = (float(slope), float(icpt), float(half_ci))
                 notes.append(f"skew not estimated: Theil-Sen slope {slope:.1f} ppm with 90% CI ±{half_ci:.1f} ppm")
         else:
             notes.append(f"skew not estimated: only {len(used)} of {n_seg} segments gave an offset")
@@ -1012,6 +1039,13 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
                 o_new, s_new = offset + res.x[0] * o_scale, skew + res.x[1] * s_scale
                 if abs(o_new - offset) < 3 * bin_us and abs(s_new - skew) < 100:
                     offset, skew = o_new, s_new
+            elif loose_line is not None:
+                accepted = _joint_skew(fit, offset, skew, loose_line, bin_us, max_skew_ppm)
+                if accepted is not None:
+                    offset, skew, lr = accepted
+                    skew_estimated = True
+                    notes.append(f"skew {skew:.1f} ppm from the joint likelihood of the whole sequence, started on "
+                                 f"the Theil-Sen line (likelihood ratio {lr:.0f} against the prior skew)")
             notes.append(f"refined: Poisson maximum likelihood ({len(fit.blocks)} gain blocks, noise floor "
                          f"{fit.n0:.2f} per bin)")
         if offset_std is not None and not offset_std <= SLOW_STD_NOTE_US:

@@ -184,6 +184,26 @@ def test_loose_offset_is_flagged(tmp_path):
     assert ncc.offset_std_us is None and ncc.to_json()["offset_std_us"] is None
 
 
+def test_joint_skew_accepts_only_a_significant_consistent_skew():
+    """A Theil-Sen line too wide to accept alone is checked on the whole sequence's likelihood:
+    accepted when the likelihood ratio against the current clock passes and the joint optimum
+    stays inside the line's interval."""
+    class Quadratic:       # log-likelihood with its optimum at (o_star, s_star)
+        def __init__(self, o_star, s_star, sd_o=300.0, sd_s=20.0):
+            self.o, self.s, self.sd_o, self.sd_s = o_star, s_star, sd_o, sd_s
+
+        def loglik(self, o, s):
+            return -0.5 * ((o - self.o) / self.sd_o) ** 2 - 0.5 * ((s - self.s) / self.sd_s) ** 2
+
+    line = (-140.0, -14_500.0, 150.0)                     # slope ppm, offset us, half CI ppm
+    o, s, lr = sync._joint_skew(Quadratic(-15_000.0, -150.0), -16_000.0, 0.0, line, 1000, 1500.0)
+    assert o == pytest.approx(-15_000, abs=5) and s == pytest.approx(-150, abs=0.5) and lr > 50
+    # weak: the prior skew is only ~1.5 sigma worse (LR ~2)
+    assert sync._joint_skew(Quadratic(-15_000.0, -30.0), -15_000.0, 0.0, line, 1000, 1500.0) is None
+    # the joint optimum far outside the line's interval: not the skew the segments saw
+    assert sync._joint_skew(Quadratic(-15_000.0, 400.0), -15_000.0, 0.0, line, 1000, 1500.0) is None
+
+
 def test_likelihood_std_follows_the_envelope_not_the_ripple():
     """A quadratic log-likelihood (sigma 3 ms) with a 4 ms ripple of 3 log units: the standard
     error is the envelope's, not the ripple's sharp local curvature; flat or upward: inf."""
