@@ -8,9 +8,12 @@ from two signals that both follow the camera's motion:
   (:meth:`core.events.EventStore.rate`, no event is read), and
 * an **image-motion proxy** from the trajectory: the mean optical-flow magnitude (px/s) over a
   grid of pixel rays for a scene at the distance of the objects (``kind="flow"``, default), or
-  ``fx * (|v| / z + |w|)`` (``kind="speed"``). The interpolation is piecewise linear / slerp, so
-  the proxy is piecewise constant between pose samples and its mean over any time interval is
-  exact (a cumulative integral): sub-bin shifts need no resampling.
+  ``fx * (|v| / z + |w|)`` (``kind="speed"``). Finite differences of the poses give each
+  pose interval's mean speed; the proxy runs linearly through them at the intervals' midpoints,
+  sampled every 250 µs (:func:`_smooth_proxy`: a real arm moves smoothly, and a staircase with a
+  step at every pose sample would put a ripple with the pose period into the likelihood). It is
+  piecewise constant on those pieces, so its mean over any time interval is exact (a cumulative
+  integral): sub-bin shifts need no resampling.
 
 Method (:func:`estimate_clock`)
 -------------------------------
@@ -28,6 +31,9 @@ Method (:func:`estimate_clock`)
 3. **Skew**: the same estimate on ``n_segments`` consecutive segments (search ``±`` the drift
    that ``max_skew_ppm`` allows), each refined continuously; a Theil-Sen line through the
    segment offsets gives skew (its slope, µs/s = ppm) and offset (its value at ``t_ref``).
+   A line whose 90 % interval is wider than ±100 ppm (a few loose segments) is checked on the
+   whole sequence's likelihood instead (:func:`_joint_skew`: accepted when the likelihood ratio
+   against the prior skew passes :data:`SKEW_MIN_LR` and the optimum stays inside the interval).
 4. **Continuous refinement** (``refine="ml"``, default): the Poisson likelihood of the raw
    counts under ``noise floor + exp(gain polynomial per block) x proxy`` (:class:`_PoissonFit`)
    is maximised over the offset (a quarter-bin scan of ±10 ms around the NCC estimate, then
@@ -49,13 +55,7 @@ Method (:func:`estimate_clock`)
 The original E-POSE approach is kept as a named baseline, :func:`sync_minima_baseline`: match
 minima of the smoothed event rate to minima of the robot speed and average the differences.
 
-Accuracy (``bench/accuracy.py``, ``docs/accuracy.txt``): on 8 s rendered scenes (87x65, ~50-75
-k events/s) the default estimate is within ~0.1-0.2 ms at 0.5-1.0 m/s (NCC alone: 0.2-1.2 ms);
-the skew of 20 s sequences is within a few ppm. At 0.1 m/s both estimates are off by several
-ms (8 s: 8.4 ms, 40 s: 3.9 ms, a 20 s full-resolution scene 0.9-5.3 ms): the events lag the
-start of each slow move, a bias that grows as 1/speed and that the rate model does not
-capture yet. Check slow sequences with :func:`core.refine.refine_offset` (event/edge
-alignment) when the object poses are right.
+Accuracy (``bench/accuracy.py``, ``docs/accuracy.txt``): ACCURACY_PLACEHOLDER
 
 Units: times are int64 µs on the event clock (``t_ref_us`` = first event), offsets µs, skew ppm.
 """
