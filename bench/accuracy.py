@@ -4,9 +4,9 @@ Run ``python bench/accuracy.py`` (``--quick`` for one seed and fewer window coun
 run also writes ``docs/accuracy.png`` and ``docs/accuracy.txt`` (``--no-docs`` to skip); the
 plot always goes to ``bench/out/accuracy.png``, the tables to stdout.
 
-Run time on 2 cores: full ~22 min with the scenes cached, quick ~6 min. The rendered scenes
+Run time on 2 cores: full ~9 min with the scenes cached, ~18 min the first time. The rendered scenes
 are made once with :mod:`core.synth` and cached in ``bench/.data/accuracy/`` (two at a time;
-generating all 21 takes ~20 min wall on 2 cores, the quick subset ~12 min).
+generating all 21 takes ~9 min wall on 2 cores).
 
 The scenes render a frame at least every :data:`MAX_FRAME_INTERVAL_US` while the camera moves
 (``SynthConfig.max_frame_interval_us``), so the simulated event timing is finer than the 0.2 ms
