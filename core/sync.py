@@ -61,9 +61,10 @@ Accuracy (``bench/accuracy.py``, ``docs/accuracy.txt``; rendered scenes with smo
 motion by ~0.4-0.9 ms, an effect of the contrast thresholds (about -0.55 ms with a 4x lower
 threshold, -1.3 ms with identical thresholds in every pixel, unchanged without the refractory
 period or with 4x finer frames: the pixels' reference levels at the onset of a move, which the
-rate model does not describe), and the estimate moves by a few tenths of a millisecond with
-where the gain blocks are cut (a cubic-spline gain continuous over each run of motion was worse:
-0.5-2.7 ms). Skew of 20 s
+rate model does not describe), and the estimate moves by a few tenths of a millisecond with how
+the gain blocks are laid out. Other gain models measured no better on these scenes: one block per
+run of motion (same), 0.5 s blocks or cubic gains (worse), a cubic spline continuous over each run
+(0.5-2.7 ms). Skew of 20 s
 sequences: ~9 ppm median. At 0.1 m/s the offset is off by 4-10 ms, consistent with the reported
 standard error (1.6-4.9 ms): a slow move starts and stops gradually, and its rate carries little
 timing. Check slow sequences with :func:`core.refine.refine_offset` (event/edge alignment) when
