@@ -58,11 +58,12 @@ minima of the smoothed event rate to minima of the robot speed and average the d
 Accuracy (``bench/accuracy.py``, ``docs/accuracy.txt``; rendered scenes with smooth motion): on
 8 s scenes at 87x65 (~25-75 k events/s) the default estimate is within ~0.4 ms at 0.5-1.0 m/s
 (NCC alone: 0.5-1.2 ms), about twice the reported standard error: the simulated events lag the
-motion by ~0.4-0.9 ms, an effect of the contrast thresholds (about -0.55 ms with a 4x lower
-threshold, -1.3 ms with identical thresholds in every pixel, unchanged without the refractory
-period or with 4x finer frames: the pixels' reference levels at the onset of a move, which the
-rate model does not describe), and the estimate moves by a few tenths of a millisecond with how
-the gain blocks are laid out. Other gain models measured no better on these scenes: one block per
+motion by ~0.4-0.9 ms, tied to the contrast thresholds (about -0.55 ms with a 4x lower
+threshold, -1.3 ms with identical thresholds in every pixel; unchanged without the refractory
+period or with 4x finer frames). A dead band at the onset of each move (a rate deficit over the
+first fraction of a pixel of image motion, for the share of pixels whose brightness change
+reverses) does not describe it: the likelihood rejects it. The likelihood also has local modes
+~1.5 ms apart, and how the gain blocks are laid out decides between them at times. Other gain models measured no better on these scenes: one block per
 run of motion (same), 0.5 s blocks or cubic gains (worse), a cubic spline continuous over each run
 (0.5-2.7 ms). Skew of 20 s
 sequences: ~9 ppm median. At 0.1 m/s the offset is off by 4-10 ms, consistent with the reported
