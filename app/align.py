@@ -92,7 +92,7 @@ class SyncDialog(QtWidgets.QDialog):
                        "and correct by hand.")
         elif loose:
             verdict = ("<b style='color:#a60'>Reliable peak, loose timing:</b> the event rate pins the offset only to "
-                       + (f"±{std / 1000:.1f} ms" if np.isfinite(std) else "more than ±30 ms")
+                       + (f"±{std / 1000:.1f} ms" if np.isfinite(std) else "nothing within its likelihood scan")
                        + " (few or gradual starts and stops). Check it on the event frames, or refine the offset "
                          "from edges once the poses are right. Accept applies it as one undo step.")
         else:

@@ -213,17 +213,17 @@ def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, 
     z = np.clip(np.nan_to_num(0.5 * (z[:-1] + z[1:]), nan=DEFAULT_DEPTH_M), 0.02, 1e3)
     if kind == "speed":
         val = fx * (np.linalg.norm(v, axis=1) / z + np.linalg.norm(w, axis=1))
-        return _smooth_proxy(int(t[0]), knots, val, kind) if smooth else MotionProxy(int(t[0]), knots, val, kind)
-    g = np.zeros((1, 2)) if rays_xy is None else np.asarray(rays_xy, dtype=np.float64).reshape(-1, 2)
-    x, y = g[:, 0][None], g[:, 1][None]
-    val = np.empty(n - 1)
-    for i in range(0, n - 1, chunk):
-        s = slice(i, i + chunk)
-        vx, vy, vz = (v[s, j][:, None] / z[s, None] for j in range(3))
-        wx, wy, wz = (w[s, j][:, None] for j in range(3))
-        du = fx * ((x * vz - vx) + x * y * wx - (1 + x * x) * wy + y * wz)
-        dv = fy * ((y * vz - vy) + (1 + y * y) * wx - x * y * wy - x * wz)
-        val[s] = np.hypot(du, dv).mean(axis=1)
+    else:
+        g = np.zeros((1, 2)) if rays_xy is None else np.asarray(rays_xy, dtype=np.float64).reshape(-1, 2)
+        x, y = g[:, 0][None], g[:, 1][None]
+        val = np.empty(n - 1)
+        for i in range(0, n - 1, chunk):
+            s = slice(i, i + chunk)
+            vx, vy, vz = (v[s, j][:, None] / z[s, None] for j in range(3))
+            wx, wy, wz = (w[s, j][:, None] for j in range(3))
+            du = fx * ((x * vz - vx) + x * y * wx - (1 + x * x) * wy + y * wz)
+            dv = fy * ((y * vz - vy) + (1 + y * y) * wx - x * y * wy - x * wz)
+            val[s] = np.hypot(du, dv).mean(axis=1)
     return _smooth_proxy(int(t[0]), knots, val, kind) if smooth else MotionProxy(int(t[0]), knots, val, kind)
 
 
@@ -333,9 +333,9 @@ class SyncResult:
     runtime_s : float
     offset_std_us : float or None
         Standard error (1 sigma) of ``offset_us`` from the curvature of the Poisson likelihood
-        (``refine="ml"`` only; at the estimated skew): how tightly the event rate pins the
-        offset. ``inf`` when the likelihood is flat over its ±30 ms scan; None when
-        not computed. Sub-millisecond at 0.5-1 m/s, several ms for slow (0.1 m/s) sequences
+        (``refine="ml"`` only; at the skew in effect before the final 2-D refinement): how
+        tightly the event rate pins the offset. ``inf`` when the likelihood is flat over its
+        scan (±30 ms at 1 ms bins); None when not computed. Sub-millisecond at 0.5-1 m/s, several ms for slow (0.1 m/s) sequences
         with few moves - a property of the data, not a failure: the timing comes from where the
         motion starts and stops, and gradual starts carry little of it.
     """
@@ -715,21 +715,18 @@ def _ml_offset(prob, sel, offset0, skew, half_width_us, margin_extra_us=50_000, 
     ll = np.array([fit.loglik(o, skew) for o in grid])
     if not np.isfinite(ll).any():
         return None, fit, None
-    std_us = None
-    if std:
+    if std:     # whole-bin steps beyond the fine scan (_likelihood_std_us needs no order)
         k = np.arange(1, int(math.ceil((outer_us - n * step) / bin_us)) + 1)
-        far = np.concatenate([grid[0] - bin_us * k[::-1], grid[-1] + bin_us * k])
-        ll_far = np.array([fit.loglik(o, skew) for o in far])
-        order = np.argsort(np.concatenate([grid, far]))
-        all_grid, all_ll = np.concatenate([grid, far])[order], np.concatenate([ll, ll_far])[order]
+        far = np.concatenate([grid[0] - bin_us * k, grid[-1] + bin_us * k])
+        scan = (np.concatenate([grid, far]), np.concatenate([ll, [fit.loglik(o, skew) for o in far]]))
     i = int(np.nanargmax(ll))
     if i == 0 or i == len(grid) - 1:
-        return None, fit, (_likelihood_std_us(all_grid, all_ll, offset0, bin_us) if std else None)
-    res = optimize.minimize_scalar(lambda o: -fit.loglik(o, skew), bounds=(grid[i - 1], grid[i + 1]),
-                                   method="bounded", options={"xatol": xatol})
-    best = float(res.x) if -res.fun >= ll[i] else float(grid[i])
-    if std:
-        std_us = _likelihood_std_us(all_grid, all_ll, best, bin_us)
+        best = None
+    else:
+        res = optimize.minimize_scalar(lambda o: -fit.loglik(o, skew), bounds=(grid[i - 1], grid[i + 1]),
+                                       method="bounded", options={"xatol": xatol})
+        best = float(res.x) if -res.fun >= ll[i] else float(grid[i])
+    std_us = _likelihood_std_us(*scan, offset0 if best is None else best, bin_us) if std else None
     return best, fit, std_us
 
 
@@ -766,6 +763,19 @@ def _likelihood_std_us(grid_us: np.ndarray, loglik: np.ndarray, best_us: float, 
     return sigma * 1e3
 
 
+def _max_clock(fit: "_PoissonFit", offset_us: float, skew_ppm: float, bin_us: int, skew_step_ppm: float,
+               maxiter: int) -> tuple[float, float, float]:
+    """Nelder-Mead on the likelihood over (offset, skew) from a start clock, with a first simplex
+    of a quarter bin and ``skew_step_ppm``; returns ``(offset, skew, log-likelihood)``."""
+    o_scale, s_scale = 100.0, 10.0                                  # µs and ppm per unit step
+    f = lambda q: -fit.loglik(offset_us + q[0] * o_scale, skew_ppm + q[1] * s_scale)
+    res = optimize.minimize(f, np.zeros(2), method="Nelder-Mead",
+                            options={"xatol": 0.002, "fatol": 1e-9, "maxiter": maxiter,
+                                     "initial_simplex": np.array([[0, 0], [bin_us / o_scale / 4, 0],
+                                                                  [0, skew_step_ppm / s_scale]])})
+    return offset_us + res.x[0] * o_scale, skew_ppm + res.x[1] * s_scale, float(-res.fun)
+
+
 def _joint_skew(fit: "_PoissonFit", offset_us: float, skew_ppm: float, line: tuple, bin_us: int,
                 max_skew_ppm: float, min_lr: float = SKEW_MIN_LR):
     """Offset and skew maximising the whole sequence's likelihood, started on a Theil-Sen line
@@ -777,13 +787,8 @@ def _joint_skew(fit: "_PoissonFit", offset_us: float, skew_ppm: float, line: tup
     or None."""
     slope, icpt, half_ci = line
     ll0 = fit.loglik(offset_us, skew_ppm)
-    o_scale, s_scale = 100.0, 10.0
-    f = lambda q: -fit.loglik(icpt + q[0] * o_scale, slope + q[1] * s_scale)
-    res = optimize.minimize(f, np.zeros(2), method="Nelder-Mead",
-                            options={"xatol": 0.002, "fatol": 1e-9, "maxiter": 600,
-                                     "initial_simplex": np.array([[0, 0], [bin_us / o_scale / 4, 0], [0, 1.0]])})
-    o1, s1 = icpt + res.x[0] * o_scale, slope + res.x[1] * s_scale
-    lr = 2.0 * (-res.fun - ll0)
+    o1, s1, ll1 = _max_clock(fit, icpt, slope, bin_us, skew_step_ppm=10.0, maxiter=600)
+    lr = 2.0 * (ll1 - ll0)
     if not (np.isfinite(lr) and lr >= min_lr and abs(s1 - slope) <= half_ci and abs(s1) <= max_skew_ppm):
         return None
     return float(o1), float(s1), float(lr)
@@ -1046,13 +1051,7 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
         else:
             offset = o_ml
             if skew_estimated:
-                o_scale, s_scale = 100.0, 10.0
-                f = lambda q: -fit.loglik(offset + q[0] * o_scale, skew + q[1] * s_scale)
-                res = optimize.minimize(f, np.zeros(2), method="Nelder-Mead",
-                                        options={"xatol": 0.002, "fatol": 1e-9, "maxiter": 400,
-                                                 "initial_simplex": np.array([[0, 0], [bin_us / o_scale / 4, 0],
-                                                                              [0, 0.5]])})
-                o_new, s_new = offset + res.x[0] * o_scale, skew + res.x[1] * s_scale
+                o_new, s_new, _ = _max_clock(fit, offset, skew, bin_us, skew_step_ppm=5.0, maxiter=400)
                 if abs(o_new - offset) < 3 * bin_us and abs(s_new - skew) < 100:
                     offset, skew = o_new, s_new
             elif loose_line is not None:
