@@ -62,11 +62,23 @@ def cmd_sync(args) -> int:
         data["correction"] = None if corr is None else {"offset_us": corr[0], "skew_ppm": corr[1]}
         if args.baseline:
             data["baseline"] = sync_minima_baseline(scene, range_ms=args.range_ms).to_json()
+        edges = None
+        if args.edges and res.reliable:
+            from .refine import RefineParams, refine_offset_from_sync
+
+            edges = refine_offset_from_sync(scene, res, params=RefineParams(n_windows=args.windows),
+                                            progress=_progress(args))
+            if not args.json and not args.quiet:
+                print("", file=sys.stderr)
+            data["edges"] = edges.to_json()
         applied = False
         if args.apply:
             if res.reliable:
+                from .refine import apply_offset_result
+
                 history = History(scene.corrections)
-                applied = apply_sync(history, scene, res)
+                applied = (apply_offset_result(history, scene, edges, "clock sync (rate, then edges)")
+                           if edges is not None and edges.accepted else apply_sync(history, scene, res))
                 if applied:
                     data["saved"] = str(scene.save_corrections())
             else:
@@ -84,6 +96,8 @@ def cmd_sync(args) -> int:
             text += f"\ncorrection on top of the prior: offset {corr[0]} us, skew {corr[1]:.2f} ppm"
     else:
         text = f"no reliable estimate: {res.reason}"
+    if edges is not None:
+        text += "\n" + _edges_line(edges)
     if args.baseline:
         b = data["baseline"]
         text += (f"\nbaseline (E-POSE minima matching): offset {b['offset_us']} us"
@@ -94,10 +108,23 @@ def cmd_sync(args) -> int:
     return 0
 
 
+def _edges_line(r, label: str = "edges") -> str:
+    """One line for an offset refinement from edges."""
+    if not r.accepted:
+        return f"{label}: start kept ({r.reason})"
+    std = r.offset_std_us
+    pm = "" if std is None or not math.isfinite(std) else f" ± {std:.0f} us (1 sigma)"
+    sk = f"{r.skew_ppm:.2f} ppm" + (" (fitted" + (f", ± {r.skew_std_ppm:.1f} ppm)" if r.skew_std_ppm is not None
+                                                  and math.isfinite(r.skew_std_ppm) else ")")
+                                   if r.skew_estimated else " (kept)")
+    return (f"{label}: offset {r.offset_us} us{pm}, skew {sk}; {r.n_windows} windows, {r.runtime_s:.1f} s "
+            "(assumes the object poses are right)")
+
+
 # ---------------------------------------------------------------------------- refine
 def cmd_refine(args) -> int:
     from .history import History
-    from .refine import RefineParams, refine_object, refine_offset
+    from .refine import RefineParams, apply_offset_result, refine_object, refine_offset
 
     scene = _open(args.scene)
     out = {"objects": {}}
@@ -118,13 +145,12 @@ def cmd_refine(args) -> int:
             if args.offset:
                 r = refine_offset(scene, params=params, progress=_progress(args))
                 out["offset"] = r.to_json()
-                lines.append(f"offset: {'accepted' if r.accepted else 'kept'} {r.offset_us} us "
-                             f"(objective {r.objective_before:.4f} -> {r.objective_after:.4f}, {r.runtime_s:.1f} s)")
+                lines.append(_edges_line(r, "offset from edges")
+                             + f"; objective {r.objective_before:.4f} -> {r.objective_after:.4f}")
                 if r.accepted:
-                    clock = scene.clock_with(offset_us=int(r.offset_us))  # the poses are fitted on it
-                if args.apply and r.accepted:
-                    history.set(("offset_us",), int(r.offset_us) - int(scene.manifest.clock_offset_us))
-                    changed = True
+                    clock = scene.clock_with(offset_us=int(r.offset_us), skew_ppm=r.skew_ppm)  # poses fit on it
+                if args.apply:
+                    changed |= apply_offset_result(history, scene, r)
             for n in names:
                 r = refine_object(scene, n, params=params, clock=clock, progress=_progress(args))
                 out["objects"][n] = r.to_json()
@@ -182,6 +208,10 @@ def add_align_parsers(subparsers) -> None:
     s.add_argument("--baseline", action="store_true",
                    help="also run the original E-POSE minima-matching method and report it under 'baseline'")
     s.add_argument("--curve", action="store_true", help="include the correlation curve in the JSON")
+    s.add_argument("--edges", action="store_true",
+                   help="then refine offset (and skew) from event/edge alignment within 3 standard errors of the "
+                        "rate estimate (needs right object poses; reported under 'edges', applied with --apply)")
+    s.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_sync)
 

@@ -52,12 +52,18 @@ from .events import Cancelled
 from .geometry import inv_T, make_T
 from .raster import Rasterizer
 
-__all__ = ["RefineResult", "RefineParams", "refine_object", "refine_offset", "choose_windows", "delta_T"]
+__all__ = ["RefineResult", "RefineParams", "refine_object", "refine_offset", "refine_offset_from_sync",
+           "sync_edge_half_range_us", "apply_offset_result", "choose_windows", "delta_T"]
 
 
 # ---------------------------------------------------------------------------- parameters / results
 #: Coarse-to-fine kernel widths (px at half DAVIS346 resolution, fx = 146; scaled by fx / 146).
 DEFAULT_SIGMAS_PX = (1.5, 0.8, 0.5, 0.3, 0.2, 0.12, 0.08)
+#: Windows are taken where the image moves at least this fast (px/s at half DAVIS346 resolution,
+#: scaled by fx / 146): a camera speed of ~0.07 m/s past a scene 0.5 m away; on slower sequences
+#: at least MIN_WINDOW_SHARE of the sequence's fast image speed (95th percentile), at least 1 px/s.
+MIN_WINDOW_PX_S = 20.0
+MIN_WINDOW_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -102,6 +108,15 @@ class RefineResult:
         of the manifest); the start value when not accepted.
     offset_us : int or None
         Total effective clock offset (offset refinement).
+    offset_std_us : float or None
+        Its standard error (jackknife over the windows) when accepted; ``inf`` when the windows
+        do not pin it, NaN with fewer than 3 windows.
+    skew_ppm : float or None
+        Total skew of the accepted clock (the start's unless ``skew_estimated``).
+    skew_std_ppm : float or None
+        Standard error of the skew fitted from the windows (also when it was not taken).
+    skew_estimated : bool
+        The fitted skew was taken (see :func:`refine_offset`).
     dR_deg, dt_mm : float
         Size of the change found (rotation angle, translation of the object's centre).
     score_before, score_after : float or None
@@ -121,6 +136,10 @@ class RefineResult:
     object: str | None
     dT_base: np.ndarray | None = None
     offset_us: int | None = None
+    offset_std_us: float | None = None
+    skew_ppm: float | None = None
+    skew_std_ppm: float | None = None
+    skew_estimated: bool = False
     dR_deg: float = 0.0
     dt_mm: float = 0.0
     score_before: float | None = None
@@ -147,6 +166,12 @@ class RefineResult:
             d["dT_base"] = np.asarray(self.dT_base).tolist()
         if self.offset_us is not None:
             d["offset_us"] = int(self.offset_us)
+        if self.offset_std_us is not None:
+            d["offset_std_us"] = num(self.offset_std_us)
+        if self.kind == "offset":
+            d["skew_ppm"] = num(self.skew_ppm)
+            d["skew_std_ppm"] = num(self.skew_std_ppm)
+            d["skew_estimated"] = bool(self.skew_estimated)
         return d
 
 
@@ -367,23 +392,36 @@ class _Contours:
 
 
 # ---------------------------------------------------------------------------- window choice
-def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=None, min_px_s: float = 20.0):
-    """``n_windows`` windows of ``window_us`` spread evenly over the moving part of the sequence
-    (image speed above ``min_px_s`` and, when ``objects`` are given, at least one of them in
-    front of the camera). Returns a list of ``(t0_us, t1_us)``."""
+def _window_speeds_px_s(scene, centres_us: np.ndarray, window_us: int, clock, proxy=None):
+    """Mean image speed (px/s, :func:`core.sync.scene_motion_proxy`) over windows of
+    ``window_us`` centred on ``centres_us``; returns ``(speed, valid)``."""
     from .sync import scene_motion_proxy
 
+    proxy = proxy or scene_motion_proxy(scene)
+    c = np.asarray(centres_us, np.int64)
+    a = clock.pose_time_rel(c - window_us // 2, proxy.t0_us)
+    b = clock.pose_time_rel(c + window_us // 2, proxy.t0_us)
+    return proxy.mean_over(a, b)
+
+
+def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=None, min_px_s: float | None = None):
+    """``n_windows`` windows of ``window_us`` spread evenly over the moving part of the sequence
+    (image speed above ``min_px_s``, default :data:`MIN_WINDOW_PX_S` at half DAVIS346 resolution
+    scaled by ``fx / 146``, lowered to a quarter of the sequence's fast speed on slow sequences,
+    and, when ``objects`` are given, at least one of them in front of the camera).
+    Returns a list of ``(t0_us, t1_us)``."""
     ev = scene.events
     if ev.t_first_us is None or ev.t_last_us - ev.t_first_us < window_us:
         return []
     clock = clock or scene.clock
-    proxy = scene_motion_proxy(scene)
     grid = np.arange(ev.t_first_us + window_us, ev.t_last_us - window_us, max(window_us // 2, 500), dtype=np.int64)
     if len(grid) == 0:
         return []
-    a = clock.pose_time_rel(grid - window_us // 2, proxy.t0_us)
-    b = clock.pose_time_rel(grid + window_us // 2, proxy.t0_us)
-    sp, ok = proxy.mean_over(a, b)
+    sp, ok = _window_speeds_px_s(scene, grid, window_us, clock)
+    if min_px_s is None:
+        # a slow sequence (low resolution, far scene) still has its faster half
+        fast = float(np.percentile(sp[ok], 95)) if ok.any() else 0.0
+        min_px_s = max(min(MIN_WINDOW_PX_S * float(scene.camera.K[0, 0]) / 146.0, MIN_WINDOW_SHARE * fast), 1.0)
     good = ok & (sp >= min_px_s)
     if objects:
         T, v = scene.T_cam_obj(grid, objects, clock=clock)
@@ -436,11 +474,9 @@ def _beta(s, outer, sigma):
     return 0.0 if n_in + n_out < 10 else float((n_in - n_out) / (n_in + n_out))
 
 
-def _evaluate(setup: _Setup, T_bo_list, k: int | None, sigma: float, beta: float | None, clock=None,
-              contours=None):
-    """Objective at a pose set: mean kernel over events associated with object k (all objects
-    when k is None) within the band; also returns beta and the event count."""
-    contours = contours or setup.contours(T_bo_list, clock)
+def _band_distances(setup: _Setup, T_bo_list, k: int | None, sigma: float, clock, contours):
+    """Per window: signed distances and outer flags of the events within the band of the
+    contours (object k's only when k is given)."""
     band = setup.p.band_sigmas * sigma
     S, O = [], []
     for w, c in zip(setup.wins, contours):
@@ -452,6 +488,16 @@ def _evaluate(setup: _Setup, T_bo_list, k: int | None, sigma: float, beta: float
             si, sd = si[keep], sd[keep]
         S.append(sd)
         O.append(c.outer[si])
+    return S, O
+
+
+def _evaluate(setup: _Setup, T_bo_list, k: int | None, sigma: float, beta: float | None, clock=None,
+              contours=None, per_window: bool = False):
+    """Objective at a pose set: mean kernel over events associated with object k (all objects
+    when k is None) within the band; also returns beta and the event count (and, with
+    ``per_window``, each window's share of the objective, which sum to it)."""
+    contours = contours or setup.contours(T_bo_list, clock)
+    S, O = _band_distances(setup, T_bo_list, k, sigma, clock, contours)
     s = np.concatenate(S) if S else np.zeros(0)
     o = np.concatenate(O) if O else np.zeros(0, bool)
     if beta is None:
@@ -459,8 +505,11 @@ def _evaluate(setup: _Setup, T_bo_list, k: int | None, sigma: float, beta: float
     # a sum over the events within the band of the current edges (normalised by the fixed number
     # of events in the windows), not a mean: a pose that keeps fewer events near its edges must
     # not win by discarding the badly fitting ones
-    n_all = sum(int(w.ok.sum()) for w in setup.wins)
-    val = float(_kernel(s, o, sigma, beta).sum()) / max(n_all, 1) if len(s) else float("nan")
+    n_all = max(sum(int(w.ok.sum()) for w in setup.wins), 1)
+    val = float(_kernel(s, o, sigma, beta).sum()) / n_all if len(s) else float("nan")
+    if per_window:
+        parts = np.array([float(_kernel(a, b, sigma, beta).sum()) / n_all for a, b in zip(S, O)])
+        return val, beta, len(s), parts
     return val, beta, len(s)
 
 
@@ -647,18 +696,160 @@ def refine_object(scene, name: str, *, windows=None, params: RefineParams = Refi
     return result
 
 
+#: Final grid of :func:`refine_offset`: offsets ``± STD_GRID_STEPS`` steps of a quarter of the
+#: finest kernel's width (in time, at the windows' median image speed) around the optimum, widened
+#: by the drift the skew range allows over the windows.
+STD_GRID_STEPS = 6
+#: Skew change searched by :func:`refine_offset` around the start skew (ppm). The fitted skew
+#: replaces the start's when its standard error is at most SKEW_EDGE_MAX_STD_PPM (the windows pin
+#: it: the event rate's own skew on a short sequence can be off by 100+ ppm) or when the change
+#: stands out by SKEW_EDGE_SIGMAS standard errors.
+SKEW_EDGE_RANGE_PPM = 300.0
+SKEW_EDGE_MAX_STD_PPM = 15.0
+SKEW_EDGE_SIGMAS = 3.0
+
+
+def _peak_fit(grid: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Centre and height of a least-squares parabola through the upper half of a sampled peak
+    (the points within half the sampled range of the maximum), so the fine-scale roughness of
+    the objective (events changing their nearest edge sample) does not decide the offset.
+    ``(nan, nan)`` when the peak is not inside the evenly spaced ``grid``."""
+    nan = (float("nan"), float("nan"))
+    ok = np.isfinite(y)
+    if ok.sum() < 3:
+        return nan
+    j = int(np.argmax(np.where(ok, y, -np.inf)))
+    if j == 0 or j == len(y) - 1:
+        return nan
+    ymax, ymin = float(y[j]), float(np.min(y[ok]))
+    use = ok & (y >= ymax - 0.5 * (ymax - ymin))
+    if use.sum() < 3:
+        use = np.zeros(len(y), bool)
+        use[j - 1:j + 2] = True
+    step = float(grid[1] - grid[0])
+    x = (grid[use] - grid[j]) / step
+    c2, c1, c0 = np.polyfit(x, y[use], 2)
+    if not c2 < 0:
+        return nan
+    xc = -c1 / (2.0 * c2)
+    centre = float(grid[j] + xc * step)
+    if not grid[0] <= centre <= grid[-1]:
+        return nan
+    return centre, float(c0 + c1 * xc + c2 * xc * xc)
+
+
+def _clock_fit(grid_us: np.ndarray, parts: np.ndarray, tau_us: np.ndarray, dk_ppm: np.ndarray) -> tuple:
+    """Offset and skew change that maximise the windows' summed objective.
+
+    ``parts[:, w]`` is window w's share of the objective at the offsets ``grid_us`` (all at the
+    start skew); a window only sees the clock through its effective offset, so under a skew
+    change ``dk`` window w at ``tau_us[w]`` (µs after the clock's reference) is read at
+    ``c + dk * (tau_w - mean tau)``, where ``c`` is the offset at the windows' mean time. For
+    each ``dk`` of the evenly spaced ``dk_ppm`` the summed curve's peak (:func:`_peak_fit` on
+    the grid's central part, which every window covers) gives ``c`` and a height; the heights'
+    peak over ``dk`` gives the skew change. Returns ``(offset_us at the clock reference,
+    dk_ppm)``; NaNs when the peak is not inside the grids. With ``dk_ppm = [0]`` it is the 1-D
+    offset fit at the start skew.
+    """
+    nan = (float("nan"), float("nan"))
+    rel = (tau_us - tau_us.mean()) * 1e-6
+    margin = float(np.max(np.abs(dk_ppm))) * float(np.max(np.abs(rel), initial=0.0))
+    cgrid = grid_us[(grid_us >= grid_us[0] + margin - 1e-6) & (grid_us <= grid_us[-1] - margin + 1e-6)]
+    if len(cgrid) < 3:
+        return nan
+
+    def peak_at(dk):
+        tot = np.zeros(len(cgrid))
+        for w in range(parts.shape[1]):
+            tot += np.interp(cgrid + dk * rel[w], grid_us, parts[:, w])
+        return _peak_fit(cgrid, tot)
+
+    if len(dk_ppm) == 1:
+        c, _ = peak_at(float(dk_ppm[0]))
+        dk = float(dk_ppm[0])
+    else:
+        heights = np.array([peak_at(float(d))[1] for d in dk_ppm])
+        dk, _ = _peak_fit(dk_ppm, heights)
+        if not np.isfinite(dk):
+            return nan
+        c, _ = peak_at(dk)
+    if not np.isfinite(c):
+        return nan
+    return c - dk * 1e-6 * float(tau_us.mean()), dk
+
+
+def _jackknife_clock(grid_us: np.ndarray, parts: np.ndarray, tau_us: np.ndarray, dk_ppm: np.ndarray) -> tuple:
+    """Jackknife standard errors of :func:`_clock_fit` over windows: ``(offset std µs, skew std
+    ppm)`` from the leave-one-window-out fits (their spread scaled by ``(n - 1) / n``); ``inf``
+    when a leave-one-out peak is not inside the grids (the windows do not pin it), NaN for fewer
+    than 3 windows."""
+    n = parts.shape[1]
+    if n < 3:
+        return float("nan"), float("nan")
+    fits = np.array([_clock_fit(grid_us, np.delete(parts, i, axis=1), np.delete(tau_us, i), dk_ppm)
+                     for i in range(n)])
+    if not np.isfinite(fits).all():
+        return float("inf"), float("inf")
+    sd = np.sqrt((n - 1) / n * ((fits - fits.mean(axis=0)) ** 2).sum(axis=0))
+    return float(sd[0]), float(sd[1])
+
+
+#: Windows of the offset refinement hold at least this much image motion at the sequence's fast
+#: speed (px), up to MAX_OFFSET_WINDOW_US: on a slow sequence a 10 ms window holds few events.
+OFFSET_WINDOW_PX = 1.0
+MAX_OFFSET_WINDOW_US = 50_000
+
+
+def offset_window_us(scene, window_us: int) -> int:
+    """Window length for :func:`refine_offset`: ``window_us``, lengthened on slow sequences so the
+    image moves :data:`OFFSET_WINDOW_PX` at the fast (95th percentile) image speed."""
+    from .sync import scene_motion_proxy
+
+    v = scene_motion_proxy(scene).value
+    v = v[v > 0]
+    if len(v) == 0:
+        return int(window_us)
+    fast = float(np.percentile(v, 95))
+    return int(np.clip(OFFSET_WINDOW_PX / max(fast, 1e-3) * 1e6, window_us, max(window_us, MAX_OFFSET_WINDOW_US)))
+
+
 def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(), half_range_us: float = 3000.0,
-                  progress=None, cancel=None) -> RefineResult:
-    """Refine the clock offset (skew kept) by the same edge objective over all objects:
-    a bounded 1-D search within ``± half_range_us`` of the clock in effect, coarse to fine.
-    Returns the total offset in ``offset_us``."""
+                  clock=None, skew_range_ppm: float = SKEW_EDGE_RANGE_PPM, progress=None,
+                  cancel=None) -> RefineResult:
+    """Refine the clock offset from event/edge alignment over all objects (and the skew, when
+    the windows show it): a bounded 1-D search within ``± half_range_us`` of the start clock,
+    coarse to fine, then a fit of offset and skew on the finest level.
+
+    The start is ``clock`` (default: the scene's clock in effect). A range wider than the
+    coarsest kernel's width in time (its sigma over the windows' median image speed) is scanned
+    on a grid first, so a start several milliseconds off on a fast sequence is pulled in. The
+    object poses are taken as right: an error in them shifts the edges as an offset would.
+
+    The estimate is not the optimiser's last point (the objective is rough on a fine scale):
+    each window's share of the finest level's objective is sampled on a grid of offsets, and
+    :func:`_clock_fit` takes the centre of a parabola through the top of their sum; with a skew
+    change within ``± skew_range_ppm``, windows at different times are read at different
+    offsets. The fitted skew is taken when the windows pin it (:data:`SKEW_EDGE_MAX_STD_PPM`)
+    or when it stands out by :data:`SKEW_EDGE_SIGMAS` standard errors (``skew_range_ppm=0``
+    keeps the start's). Standard errors are jackknifed over the windows
+    (:func:`_jackknife_clock`; they grow when windows disagree, e.g. because a pose is off).
+
+    Returns the total offset in ``offset_us`` (at the clock's reference time), its standard
+    error in ``offset_std_us`` and the skew in ``skew_ppm``.
+    """
     from .trajectory import ClockModel
 
     t_start = time.perf_counter()
-    clock0 = scene.clock
+    clock0 = clock or scene.clock
+
+    def at(o):
+        return ClockModel(int(round(o)), clock0.skew_ppm, clock0.t_ref_us)
+
     result = RefineResult("offset", None, offset_us=int(clock0.offset_us))
+    window_us = params.window_us
     if windows is None:
-        windows = choose_windows(scene, params.n_windows, params.window_us, scene.object_names, clock0)
+        window_us = offset_window_us(scene, params.window_us)
+        windows = choose_windows(scene, params.n_windows, window_us, scene.object_names, clock0)
     result.n_windows = len(windows)
     if not windows:
         result.reason = "no window with camera motion"
@@ -666,42 +857,132 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
         return result
     setup = _Setup(scene, scene.object_names, windows, clock0, params)
     T_bo = [scene.T_base_obj(n) for n in scene.object_names]
+    sp, ok = _window_speeds_px_s(scene, np.array([w.t_label for w in setup.wins]), window_us, clock0)
+    v_px_s = float(np.median(sp[ok])) if ok.any() else 0.0
+    v_px_us = max(v_px_s, 1.0) * 1e-6
     off = float(clock0.offset_us)
     width = float(half_range_us)
     it = 0
-    beta = None
     for level, sigma in enumerate(setup.sigmas):
         if cancel is not None and cancel():
             raise Cancelled("refinement cancelled")
-        contours = setup.contours(T_bo, ClockModel(int(round(off)), clock0.skew_ppm, clock0.t_ref_us))
-        _, beta, _ = _evaluate(setup, T_bo, None, sigma, None,
-                               clock=ClockModel(int(round(off)), clock0.skew_ppm, clock0.t_ref_us), contours=contours)
+        contours = setup.contours(T_bo, at(off))
+        _, beta, _ = _evaluate(setup, T_bo, None, sigma, None, clock=at(off), contours=contours)
 
         def f(o):
-            c = ClockModel(int(round(o)), clock0.skew_ppm, clock0.t_ref_us)
-            v, _, _ = _evaluate(setup, T_bo, None, sigma, beta, clock=c, contours=contours)
+            v, _, _ = _evaluate(setup, T_bo, None, sigma, beta, clock=at(o), contours=contours)
             return -v if np.isfinite(v) else 0.0
 
-        res = optimize.minimize_scalar(f, bounds=(off - width, off + width), method="bounded",
-                                       options={"xatol": 5.0})
+        lo, hi = off - width, off + width
+        kernel_us = sigma / v_px_us            # the objective's bump is about this wide in time
+        if level == 0 and width > 2.0 * kernel_us:
+            grid = np.linspace(lo, hi, int(min(np.ceil(2.0 * width / (0.5 * kernel_us)), 200)) + 1)
+            vals = np.array([f(o) for o in grid])
+            j = int(np.argmin(vals))
+            lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+        res = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 5.0})
         off = float(res.x)
-        width = max(width / 3.0, 300.0)
+        width = max(min(width, (hi - lo) / 2.0) / 3.0, 300.0)
         it += 1
         result.trace.append({"iteration": it, "sigma_px": float(sigma), "objective": float(-res.fun),
                              "offset_us": int(round(off)), "elapsed_s": time.perf_counter() - t_start})
         if progress is not None:
-            progress(it / len(setup.sigmas), f"offset: sigma {sigma:.2f} px -> {off:.0f} us")
+            progress(it / (len(setup.sigmas) + 1), f"offset: sigma {sigma:.2f} px -> {off:.0f} us")
     result.iterations = it
+    # final: each window's share of the finest level's objective on a grid of offsets around the
+    # optimum (wide enough for the skew range); the fits read it (no re-association)
     sig = setup.sigmas[-1]
-    c0 = clock0
-    c1 = ClockModel(int(round(off)), clock0.skew_ppm, clock0.t_ref_us)
-    j0, beta0, _ = _evaluate(setup, T_bo, None, sig, None, clock=c0)
+    k0 = float(clock0.skew_ppm)
+    tau = np.array([w.t_label - clock0.t_ref_us for w in setup.wins], np.float64)
+    rel_max = float(np.max(np.abs(tau - tau.mean()))) * 1e-6
+    step = max(0.25 * sig / v_px_us, 2.0)
+    n_drift = int(np.ceil(skew_range_ppm * rel_max / step)) if len(setup.wins) >= 3 else 0
+    grid = off + step * np.arange(-STD_GRID_STEPS - n_drift, STD_GRID_STEPS + n_drift + 1)
+    contours = setup.contours(T_bo, at(off))
+    _, beta_f, _ = _evaluate(setup, T_bo, None, sig, None, clock=at(off), contours=contours)
+    parts = np.stack([_evaluate(setup, T_bo, None, sig, beta_f, clock=at(o), contours=contours,
+                                per_window=True)[3] for o in grid])
+    zero = np.zeros(1)
+    fit_off, _ = _clock_fit(grid, parts, tau, zero)
+    off_std, _ = _jackknife_clock(grid, parts, tau, zero)
+    skew = k0
+    if n_drift > 0:
+        # the skew too, when the windows pin it (SKEW_EDGE_MAX_STD_PPM) or show it beyond
+        # SKEW_EDGE_SIGMAS standard errors
+        dk_grid = np.linspace(-skew_range_ppm, skew_range_ppm, int(np.clip(2 * n_drift + 1, 5, 61)))
+        o2, dk = _clock_fit(grid, parts, tau, dk_grid)
+        o2_std, dk_std = _jackknife_clock(grid, parts, tau, dk_grid)
+        result.skew_std_ppm = dk_std
+        if np.isfinite(dk) and np.isfinite(dk_std) and (abs(dk) > SKEW_EDGE_SIGMAS * dk_std
+                                                         or dk_std <= SKEW_EDGE_MAX_STD_PPM):
+            fit_off, off_std, skew = o2, o2_std, k0 + dk
+            result.skew_estimated = True
+    if progress is not None:
+        progress(1.0, f"offset: peak fit -> {fit_off:.0f} us")
+    start_inside = bool(grid[STD_GRID_STEPS] - 1e-6 <= clock0.offset_us <= grid[-1 - STD_GRID_STEPS] + 1e-6)
+    if np.isfinite(fit_off):
+        off = fit_off
+    c1 = ClockModel(int(round(off)), skew, clock0.t_ref_us)
+    j0, beta0, _ = _evaluate(setup, T_bo, None, sig, None, clock=clock0)
     j1, _, _ = _evaluate(setup, T_bo, None, sig, beta0, clock=c1)
     result.objective_before, result.objective_after = j0, j1
-    if np.isfinite(j1) and (not np.isfinite(j0) or j1 > j0):
+    # within the grid the fit maximises the smoothed objective, which includes the start; a start
+    # outside it is compared on the raw objective
+    if np.isfinite(fit_off) and np.isfinite(j1) and (start_inside or not np.isfinite(j0) or j1 > j0):
         result.offset_us = int(round(off))
+        result.offset_std_us = off_std
+        result.skew_ppm = skew
         result.accepted = True
     else:
-        result.reason = "the fit did not improve the objective; start kept"
+        result.skew_estimated = False
+        result.reason = ("the windows' objective has no peak near the optimum; start kept" if not np.isfinite(fit_off)
+                         else "the fit did not improve the objective; start kept")
     result.runtime_s = time.perf_counter() - t_start
     return result
+
+
+#: Search range of :func:`refine_offset_from_sync`: this many of the rate estimate's standard
+#: errors, clamped to [``SYNC_EDGE_MIN_RANGE_US``, ``SYNC_EDGE_MAX_RANGE_US``].
+SYNC_EDGE_STDS = 3.0
+SYNC_EDGE_MIN_RANGE_US = 1000.0
+SYNC_EDGE_MAX_RANGE_US = 50_000.0
+
+
+def sync_edge_half_range_us(sync_result) -> float:
+    """Search half range of :func:`refine_offset_from_sync` around a rate estimate:
+    :data:`SYNC_EDGE_STDS` of its standard errors, clamped to [:data:`SYNC_EDGE_MIN_RANGE_US`,
+    :data:`SYNC_EDGE_MAX_RANGE_US`] (the maximum when it has none)."""
+    std = getattr(sync_result, "offset_std_us", None)
+    span = SYNC_EDGE_STDS * std if std is not None and math.isfinite(std) else SYNC_EDGE_MAX_RANGE_US
+    return float(np.clip(span, SYNC_EDGE_MIN_RANGE_US, SYNC_EDGE_MAX_RANGE_US))
+
+
+def refine_offset_from_sync(scene, sync_result, *, params: RefineParams = RefineParams(), progress=None,
+                            cancel=None) -> RefineResult:
+    """Second stage of the clock sync: the offset (and skew) from event/edge alignment
+    (:func:`refine_offset`), started at a reliable event-rate estimate
+    (:func:`core.sync.sync_scene`; its clock, with the prior skew when it estimated none) and
+    searched within :func:`sync_edge_half_range_us`.
+
+    The rate pins the offset only loosely on slow sequences (a slow move starts and stops
+    gradually); the edges pin it to where the events are, ~0.05-0.3 ms on the benchmark scenes
+    at 0.1-1.0 m/s, provided the object poses are right. Not accepted (start kept) when the rate
+    estimate is not reliable.
+    """
+    if sync_result.offset_us is None or not sync_result.reliable:
+        return RefineResult("offset", None, offset_us=int(scene.clock.offset_us),
+                            reason="no reliable event-rate estimate to start from")
+    return refine_offset(scene, params=params, half_range_us=sync_edge_half_range_us(sync_result),
+                         clock=sync_result.clock(), progress=progress, cancel=cancel)
+
+
+def apply_offset_result(history, scene, result: RefineResult, text: str = "clock from edges") -> bool:
+    """Store an accepted offset refinement (offset and skew) as clock corrections through
+    ``history``, as one undo step; returns whether applied."""
+    if result.kind != "offset" or not result.accepted or result.offset_us is None:
+        return False
+    skew = scene.clock.skew_ppm if result.skew_ppm is None else float(result.skew_ppm)
+    with history.group(text):
+        history.set(("offset_us",), int(result.offset_us) - int(scene.manifest.clock_offset_us))
+        history.set(("skew_ppm",), skew - float(scene.manifest.clock_skew_ppm))
+    return True

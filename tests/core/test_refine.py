@@ -131,7 +131,71 @@ def test_refine_offset_from_edges(tiny):
     res = refine.refine_offset(shifted, params=FAST)
     assert res.accepted
     # 0.8 s of events only; ~0.1 ms on the 3 s scenes of bench/accuracy.py
-    assert abs(res.offset_us - gt["clock"]["offset_us"]) < 600, res.trace
+    err = res.offset_us - gt["clock"]["offset_us"]
+    assert abs(err) < 600, res.trace
+    assert 0 < res.offset_std_us < 600 and abs(err) < 4 * res.offset_std_us + 50
+    assert not res.skew_estimated and res.skew_ppm == scene.clock.skew_ppm   # 0.8 s: the skew is not pinned
+    # a start 4 ms off in a wide range (wider than 2 kernel widths: the first level scans it)
+    doc_far = doc.copy()
+    doc_far.offset_us += 2500
+    far = refine.refine_offset(scene.with_corrections(doc_far), params=FAST, half_range_us=40_000)
+    assert far.accepted and abs(far.offset_us - gt["clock"]["offset_us"]) < 600
+    # applied as one undo step (offset and skew)
+    from core.history import History
+
+    h = History(shifted.corrections)
+    assert refine.apply_offset_result(h, shifted, res) and len(h) == 1
+    assert shifted.clock.offset_us == res.offset_us
+    h.undo()
+    assert shifted.clock.offset_us == gt["clock"]["offset_us"] + 1500
+    assert not refine.apply_offset_result(h, shifted, refine.RefineResult("offset", None, offset_us=5))
+
+
+def test_peak_fit():
+    grid = np.arange(-10, 11) * 50.0
+    y = -((grid - 123.0) / 200.0) ** 2 + 3.0
+    c, h = refine._peak_fit(grid, y)
+    assert c == pytest.approx(123.0) and h == pytest.approx(3.0)
+    # rough on a fine scale: the parabola through the top half is not fooled by the largest sample
+    rough = np.exp(-0.5 * ((grid - 40.0) / 150.0) ** 2) + np.where(np.arange(21) % 2, 0.02, 0.0)
+    assert refine._peak_fit(grid, rough)[0] == pytest.approx(40.0, abs=25.0)
+    assert np.isnan(refine._peak_fit(grid, grid)[0])              # rising to the edge: no peak inside
+    assert np.isnan(refine._peak_fit(grid, (grid / 100.0) ** 2)[0])  # a valley
+    assert np.isnan(refine._peak_fit(grid[:2], y[:2])[0])
+
+
+def _window_curves(grid, tau_us, o_us, dk_ppm, noise, rng, width=300.0):
+    """Per-window objective curves (start skew 0) peaking at window w's effective offset
+    ``o + dk * tau_w``, with window weights and additive noise."""
+    eff = o_us + dk_ppm * 1e-6 * tau_us
+    g = np.exp(-0.5 * ((grid[:, None] - eff[None, :]) / width) ** 2)
+    return g * rng.uniform(0.5, 1.5, len(tau_us)) + rng.normal(0.0, noise, g.shape)
+
+
+def test_clock_fit_recovers_offset_and_skew_from_window_curves():
+    rng = np.random.default_rng(0)
+    grid = np.arange(-60, 61) * 25.0
+    tau = np.linspace(0.5e6, 8e6, 24)                 # window times after the clock reference, us
+    parts = _window_curves(grid, tau, 130.0, 60.0, 1e-3, rng)   # skew change +60 ppm
+    dk = np.linspace(-150, 150, 31)
+    o, k = refine._clock_fit(grid, parts, tau, dk)
+    assert o == pytest.approx(130.0, abs=10.0) and k == pytest.approx(60.0, abs=2.0)
+    so, sk = refine._jackknife_clock(grid, parts, tau, dk)
+    assert 0 < so < 10.0 and 0 < sk < 2.0
+    # at the start skew only: the offset that fits the windows on average (their mean time)
+    o1, k1 = refine._clock_fit(grid, parts, tau, np.zeros(1))
+    assert k1 == 0.0 and o1 == pytest.approx(130.0 + 60e-6 * tau.mean(), abs=20.0)
+    # noisier windows: larger standard errors, still covering the truth
+    noisy = _window_curves(grid, tau, 130.0, 60.0, 0.05, np.random.default_rng(1))
+    so2, sk2 = refine._jackknife_clock(grid, noisy, tau, dk)
+    o2, k2 = refine._clock_fit(grid, noisy, tau, dk)
+    assert so2 > so and sk2 > sk
+    assert abs(o2 - 130.0) < 4 * so2 and abs(k2 - 60.0) < 4 * sk2
+    # a peak outside the grid is not pinned; too few windows have no standard error
+    far = _window_curves(grid, tau, 5000.0, 0.0, 1e-3, rng)
+    assert np.isnan(refine._clock_fit(grid, far, tau, dk)[0])
+    assert refine._jackknife_clock(grid, far, tau, dk) == (np.inf, np.inf)
+    assert np.isnan(refine._jackknife_clock(grid, parts[:, :2], tau[:2], dk)[0])
 
 
 def test_cancel(tiny):
@@ -149,6 +213,18 @@ def test_choose_windows(tiny):
     assert all(b - a == 10_000 for a, b in w)
     assert all(scene.events.t_first_us <= a and b <= scene.events.t_last_us + 1 for a, b in w)
     assert refine.choose_windows(scene, 10, 10**9) == []
+    # a slow sequence (here: a threshold above every speed) still gets its faster windows ...
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(refine, "MIN_WINDOW_PX_S", 1e6)
+    try:
+        assert 1 <= len(refine.choose_windows(scene, 10, 10_000, ["box"])) <= 10
+    finally:
+        monkey.undo()
+    # ... but an explicit threshold is kept
+    assert refine.choose_windows(scene, 10, 10_000, ["box"], min_px_s=1e6) == []
+    # the offset refinement lengthens windows on slow sequences only
+    assert refine.offset_window_us(scene, 10_000) == 10_000
+    assert refine.offset_window_us(scene, 100) > 100
 
 
 def test_cli_refine_apply(tiny_scene_dir, tmp_path):
