@@ -43,9 +43,11 @@ def _accept_cancel(dialog: QtWidgets.QDialog, layout, enabled: bool) -> QtWidget
 
 class SyncDialog(QtWidgets.QDialog):
     """The correlation curve of the event rate against the camera motion, the estimate, its
-    confidence, and Accept (only for a reliable estimate)."""
+    confidence, and Accept (only for a reliable estimate); optionally followed by the offset from
+    edges (``then_edges``)."""
 
-    def __init__(self, parent, result, current_offset_us: int, current_skew_ppm: float):
+    def __init__(self, parent, result, current_offset_us: int, current_skew_ppm: float, has_objects: bool = False,
+                 edges_default: bool = True):
         super().__init__(parent)
         self.result = result
         self.setWindowTitle("Automatic clock sync")
@@ -100,7 +102,59 @@ class SyncDialog(QtWidgets.QDialog):
         self.verdict = QtWidgets.QLabel(verdict)
         self.verdict.setWordWrap(True)
         lay.addWidget(self.verdict)
+        self.then_edges = QtWidgets.QCheckBox("then refine offset and skew from edges (the object poses must be right)")
+        self.then_edges.setToolTip("After Accept, fit the clock so the events line up with the objects' edges, "
+                                   "within 3 standard errors of this estimate (a second proposal, its own undo step)")
+        self.then_edges.setEnabled(bool(result.reliable) and has_objects)
+        self.then_edges.setChecked(bool(result.reliable) and has_objects and edges_default)
+        lay.addWidget(self.then_edges)
         self.accept_button = _accept_cancel(self, lay, bool(result.reliable))
+
+
+class ClockRefineDialog(QtWidgets.QDialog):
+    """Offset (and skew) from event/edge alignment: before/after with standard errors; Accept
+    only when the fit was accepted."""
+
+    def __init__(self, parent, result, current_offset_us: int, current_skew_ppm: float):
+        super().__init__(parent)
+        self.result = result
+        self.setWindowTitle("Clock from edges")
+        lay = QtWidgets.QVBoxLayout(self)
+        form = QtWidgets.QFormLayout()
+
+        def num(x, fmt):
+            return "–" if x is None or not np.isfinite(x) else format(x, fmt)
+
+        if result.skew_estimated:
+            skew = f"{result.skew_ppm:+.1f} ppm ± {num(result.skew_std_ppm, '.1f')} ppm (1σ, fitted from the windows)"
+        elif result.accepted:
+            skew = (f"{result.skew_ppm:+.1f} ppm kept (the windows pin it only to "
+                    f"± {num(result.skew_std_ppm, '.1f')} ppm)" if result.skew_std_ppm is not None
+                    else f"{result.skew_ppm:+.1f} ppm kept")
+        else:
+            skew = "–"
+        rows = [("current offset", _fmt_ms(current_offset_us)),
+                ("offset from edges", (_fmt_ms(result.offset_us) + _fmt_std(result.offset_std_us))
+                 if result.accepted else "–"),
+                ("current skew", f"{current_skew_ppm:+.1f} ppm"),
+                ("skew", skew),
+                ("edge objective", f"{num(result.objective_before, '.4f')} → {num(result.objective_after, '.4f')} "
+                                   "(higher is better)"),
+                ("windows used", str(result.n_windows)),
+                ("run time", f"{result.runtime_s:.1f} s")]
+        for k, v in rows:
+            form.addRow(k, QtWidgets.QLabel(v))
+        lay.addLayout(form)
+        if result.accepted:
+            verdict = ("<b>Offset fitted to the event edges.</b> It assumes the object poses are right: a pose "
+                       "error shifts the edges like a clock error (and widens the ± above). Accept applies offset "
+                       "and skew as one undo step.")
+        else:
+            verdict = f"<b style='color:#b00'>Clock kept:</b> {result.reason}"
+        self.verdict = QtWidgets.QLabel(verdict)
+        self.verdict.setWordWrap(True)
+        lay.addWidget(self.verdict)
+        self.accept_button = _accept_cancel(self, lay, bool(result.accepted))
 
 
 class RefineDialog(QtWidgets.QDialog):
@@ -138,8 +192,10 @@ class AlignController(QtCore.QObject):
     """Runs sync / refine / score jobs for a :class:`~app.main_window.MainWindow`.
 
     In tests and screenshot runs (``window.modal_dialogs`` False) the proposal dialogs do not
-    block: ``window.auto_answer["sync"]`` / ``["refine"]`` (default True) decide, and the last
-    results are kept in ``last_sync``, ``last_refine`` and ``last_scores``.
+    block: ``window.auto_answer["sync"]`` / ``["edge_sync"]`` / ``["refine"]`` (default True)
+    decide, ``["sync_edges"]`` (default False) whether an accepted sync goes on to the edges, and
+    the last results are kept in ``last_sync``, ``last_clock_refine``, ``last_refine`` and
+    ``last_scores``.
     """
 
     def __init__(self, window):
@@ -147,6 +203,7 @@ class AlignController(QtCore.QObject):
         self.window = window
         self.jobs: list[Job] = []
         self.last_sync = None
+        self.last_clock_refine = None
         self.last_refine = None
         self.last_scores = None
 
@@ -201,13 +258,57 @@ class AlignController(QtCore.QObject):
 
         self.last_sync = result
         clock = session.scene.clock
-        dlg = SyncDialog(self.window, result, int(clock.offset_us), float(clock.skew_ppm))
+        modal = getattr(self.window, "modal_dialogs", True)
+        dlg = SyncDialog(self.window, result, int(clock.offset_us), float(clock.skew_ppm),
+                         has_objects=bool(session.object_names),
+                         edges_default=True if modal else bool(self.window.auto_answer.get("sync_edges", False)))
+        then_edges = False
         if self._decide(dlg, "sync") and apply_sync(session.history, session.scene, result, "automatic clock sync"):
             self.window.statusBar().showMessage(
                 f"clock set to {result.offset_us / 1000:+.3f} ms (confidence {result.confidence:.2f}); Ctrl+Z undoes",
                 8000)
+            then_edges = dlg.then_edges.isChecked()
         elif not result.reliable:
             self.window.statusBar().showMessage(f"clock sync: no reliable estimate ({result.reason})", 8000)
+        dlg.deleteLater()
+        if then_edges:
+            self.refine_clock()
+
+    # ------------------------------------------------------------------ clock from edges
+    def refine_clock(self) -> Job | None:
+        """Offset (and skew) from event/edge alignment. Right after an accepted automatic sync
+        (the clock in effect is its estimate) it searches within 3 of that estimate's standard
+        errors (:func:`core.refine.refine_offset_from_sync`); otherwise ±3 ms around the clock in
+        effect."""
+        from core.refine import refine_offset, refine_offset_from_sync
+
+        session = self.window.session
+        if session is None:
+            return None
+        if not session.object_names:
+            self.window.statusBar().showMessage("clock from edges: the scene has no objects", 5000)
+            return None
+        sync = self.last_sync
+        clock, est = session.scene.clock, None if sync is None or not sync.reliable else sync.clock()
+        from_sync = (est is not None and clock.offset_us == est.offset_us
+                     and abs(clock.skew_ppm - est.skew_ppm) < 1e-6)
+        if from_sync:
+            fn = lambda scene, progress, cancel: refine_offset_from_sync(scene, sync, progress=progress,  # noqa: E731
+                                                                         cancel=cancel)
+        else:
+            fn = lambda scene, progress, cancel: refine_offset(scene, progress=progress, cancel=cancel)  # noqa: E731
+        return self._run("Clock from edges", fn, self._clock_done)
+
+    def _clock_done(self, session, result) -> None:
+        from core.refine import apply_offset_result
+
+        self.last_clock_refine = result
+        clock = session.scene.clock
+        dlg = ClockRefineDialog(self.window, result, int(clock.offset_us), float(clock.skew_ppm))
+        if self._decide(dlg, "edge_sync") and apply_offset_result(session.history, session.scene, result,
+                                                                  "clock from edges"):
+            self.window.statusBar().showMessage(
+                f"clock set to {result.offset_us / 1000:+.3f} ms from edges; Ctrl+Z undoes", 8000)
         dlg.deleteLater()
 
     # ------------------------------------------------------------------ pose refinement

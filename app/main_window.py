@@ -126,6 +126,7 @@ class MainWindow(QtWidgets.QMainWindow):
             a[name].toggled.connect(lambda on, k=kind: self.session and self.session.set_overlay(k, on))
         a["reset_zoom"].triggered.connect(lambda: self.frame_view and self.frame_view.reset_zoom())
         for name, text, slot in (("auto_sync", "Automatic clock &sync…", self._auto_sync),
+                                 ("edge_sync", "Refine clock offset from &edges…", lambda: self.align.refine_clock()),
                                  ("refine_selected", "&Refine selected object from events…", lambda: self._refine("")),
                                  ("score_all", "S&core all windows (timeline)", self.align.score_all)):
             act = QtGui.QAction(text, self)
@@ -171,7 +172,7 @@ class MainWindow(QtWidgets.QMainWindow):
         for name in ("mark_verified", "mark_rejected", "mark_flagged"):
             m.addAction(a[name])
         m = self.menuBar().addMenu("&Tools")
-        for name in ("auto_sync", "refine_selected", "score_all"):
+        for name in ("auto_sync", "edge_sync", "refine_selected", "score_all"):
             m.addAction(a[name])
         m = self.menuBar().addMenu("&Help")
         m.addAction(a["help"])
@@ -215,6 +216,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.timeline = Timeline(session)
         self.spacetime = SpaceTimeView(session)
         self.panel.autoSyncRequested.connect(self._auto_sync)
+        self.panel.edgeSyncRequested.connect(lambda: self.align.refine_clock())
         self.panel.refineRequested.connect(self._refine)
         right = QtWidgets.QWidget()
         rl = QtWidgets.QVBoxLayout(right)

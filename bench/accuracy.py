@@ -4,7 +4,7 @@ Run ``python bench/accuracy.py`` (``--quick`` for one seed and fewer window coun
 run also writes ``docs/accuracy.png`` and ``docs/accuracy.txt`` (``--no-docs`` to skip); the
 plot always goes to ``bench/out/accuracy.png``, the tables to stdout.
 
-Run time on 2 cores: full ~9 min with the scenes cached, ~18 min the first time. The rendered scenes
+Run time on 2 cores: full ~13 min with the scenes cached, ~22 min the first time. The rendered scenes
 are made once with :mod:`core.synth` and cached in ``bench/.data/accuracy/`` (two at a time;
 generating all 21 takes ~9 min wall on 2 cores).
 
@@ -20,7 +20,9 @@ Sections
    peak only; weighted log fit; speed proxy; 1-10 ms bins) against the E-POSE minima-matching
    baseline. Then at 0.1 m/s on 24 s and 40 s scenes (accuracy against sequence length) and on
    8 s scenes at the full 346x260 resolution; and how well the reported standard error
-   (``SyncResult.offset_std_us``) describes the actual errors.
+   (``SyncResult.offset_std_us``) describes the actual errors. Then the second stage on all of
+   these scenes: the offset and skew from event/edge alignment
+   (:func:`core.refine.refine_offset_from_sync`, ``evpose sync --edges``) with 12 and 24 windows.
 2. **Skew** on 20 s sequences: rate-level scenes (events drawn with a rate proportional to the
    camera's image speed, ~330 k ev/s) with skews up to ±1000 ppm at 4 / 8 / 16 segments, and
    rendered 20 s scenes with -150 / +200 ppm.
@@ -361,6 +363,68 @@ def bench_uncertainty():
           "  adds to it, so |error| / sigma above 1 is the share of the error the rate model does not explain.")
 
 
+EDGE_VARIANTS = (("rate ML -> edges, 12 windows", 12), ("rate ML -> edges, 24 windows (sync --edges)", 24))
+
+
+def _edge_group(name: str) -> str:
+    if name.startswith("sync_v"):
+        return f"8 s, {name.split('_v')[1].split('_')[0]} m/s"
+    if name.startswith("skew20"):
+        return "20 s skewed, 0.5 m/s"
+    dur = name.split("_d")[1].split("_")[0]
+    return f"{dur} s{' 346x260' if name.startswith('slowfull_') else ''}, 0.1 m/s"
+
+
+def bench_sync_edges(scenes: dict, names: list):
+    """The second stage: the offset (and skew) from event/edge alignment
+    (:func:`core.refine.refine_offset_from_sync`) started at the rate estimate (one shifted-bin
+    run per scene), with the objects at their true poses (the assumption of that stage)."""
+    from core import refine
+
+    res: dict = {}     # (method, group) -> list of (offset err us, |skew err| ppm or None, sigma us, runtime s)
+    for n in names:
+        folder = scenes[n]
+        scene, gt = open_with_truth(folder, clock=False, poses=True)
+        truth, true_skew = gt["clock"]["offset_us"], gt["clock"]["skew_ppm"]
+        g = _edge_group(n)
+        t = time.perf_counter()
+        r = rebinned_sync(scene, PHASES_US[1])
+        rt_rate = time.perf_counter() - t
+        res.setdefault(("rate ML (default)", g), []).append(
+            (None if r.offset_us is None else r.offset_us - truth,
+             None if r.skew_ppm is None else abs(r.skew_ppm - true_skew), r.offset_std_us, rt_rate))
+        for label, nw in EDGE_VARIANTS:
+            e = refine.refine_offset_from_sync(scene, r, params=refine.RefineParams(n_windows=nw))
+            res.setdefault((label, g), []).append(
+                (e.offset_us - truth if e.accepted else None,
+                 abs(e.skew_ppm - true_skew) if e.accepted and e.skew_estimated else None,
+                 e.offset_std_us, rt_rate + e.runtime_s))
+        scene.close()
+    groups = list(dict.fromkeys(_edge_group(n) for n in names))
+    rows = []
+    for g in groups:
+        for label in ["rate ML (default)"] + [v[0] for v in EDGE_VARIANTS]:
+            v = res.get((label, g), [])
+            errs = [x[0] for x in v if x[0] is not None]
+            m, mx = med_max([e / 1e3 for e in errs])
+            sk = [x[1] for x in v if x[1] is not None]
+            ms, mxs = med_max(sk)
+            ratio = [abs(x[0]) / x[2] for x in v if x[0] is not None and x[2]]
+            sig = [x[2] / 1e3 for x in v if x[0] is not None and x[2] is not None]
+            rows.append([g, label, f"{len(errs)}/{len(v)}", f"{fmt(m, 3)} / {fmt(mx, 3)}",
+                         f"{fmt(ms, 1)} / {fmt(mxs, 1)} ({len(sk)})" if sk else "kept",
+                         fmt(np.median(sig), 3) if sig else "n/a", fmt(np.median(ratio)) if ratio else "n/a",
+                         fmt(np.median([x[3] for x in v]), 2)])
+    table("SYNC, rate then edges: offset error |ms| and skew error |ppm| (median / max), one shifted-bin rate run per "
+          "scene, objects at their true poses",
+          ["sequences", "method", "accepted", "offset err ms", "skew err ppm (fitted)", "sigma ms median",
+           "|err|/sigma median", "runtime s (total)"], rows)
+    print("  edges: refine_offset_from_sync searches 3 sigma of the rate estimate; skew is fitted from the windows\n"
+          "  and taken when pinned (std <= 15 ppm) or significant, else the rate's (or the prior) skew is kept.\n"
+          "  sigma: the rate's likelihood curvature / the edges' jackknife over windows.")
+    return res
+
+
 def bench_skew(n_seeds, rendered_skew):
     from core import sync
 
@@ -661,6 +725,11 @@ def _run(args, docs, tee):
     sync_results, sync_variants = bench_sync(scenes, speeds, seeds)
     bench_slow(scenes, [n for n in jobs if n.startswith(("slow_", "slowfull_"))])
     bench_uncertainty()
+    edge_res = bench_sync_edges(scenes, [n for n in jobs if n.startswith(("sync_v", "slow_", "slowfull_", "skew20"))])
+    for (label, g), v in edge_res.items():      # the 8 s groups join the error-against-run-time plot
+        if g.startswith("8 s,") and label != "rate ML (default)":
+            sync_results[(label, float(g.split(", ")[1].split()[0]))] = [(x[0], x[3]) for x in v]
+    sync_variants = list(sync_variants) + [(label, None) for label, _ in EDGE_VARIANTS]
     skew_pts = bench_skew(3 if args.quick else 6, [scenes[n] for n in jobs if n.startswith("skew20")])
     bench_unreliable()
     ref_folders = [scenes[n] for n in jobs if n.startswith("refine_")]

@@ -919,7 +919,7 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
             result.skew_estimated = True
     if progress is not None:
         progress(1.0, f"offset: peak fit -> {fit_off:.0f} us")
-    start_inside = bool(grid[STD_GRID_STEPS] - 1e-6 <= clock0.offset_us <= grid[-1 - STD_GRID_STEPS] + 1e-6)
+    start_inside = bool(grid[0] <= clock0.offset_us <= grid[-1])
     if np.isfinite(fit_off):
         off = fit_off
     c1 = ClockModel(int(round(off)), skew, clock0.t_ref_us)

@@ -62,11 +62,12 @@ class CorrectionPanel(QtWidgets.QWidget):
 
     Signals
     -------
-    autoSyncRequested(), refineRequested(str)
-        Emitted by the Auto / Refine buttons (the app runs the estimation in a worker).
+    autoSyncRequested(), edgeSyncRequested(), refineRequested(str)
+        Emitted by the Auto / Edges / Refine buttons (the app runs the estimation in a worker).
     """
 
     autoSyncRequested = QtCore.Signal()
+    edgeSyncRequested = QtCore.Signal()
     refineRequested = QtCore.Signal(str)
 
     def __init__(self, session: Session, parent=None):
@@ -104,6 +105,9 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.skew_spin.setToolTip("Clock skew correction in parts per million (added to the prior)")
         self.auto_button = QtWidgets.QPushButton("Auto…")
         self.auto_button.setToolTip("Estimate offset and skew from the event rate vs the robot speed")
+        self.edges_button = QtWidgets.QPushButton("Refine offset from edges…")
+        self.edges_button.setToolTip("Fit offset (and skew) so the events line up with the objects' edges over "
+                                     "windows spread through the sequence; assumes the object poses are right")
         reset_offset = QtWidgets.QToolButton(text="⟲")
         reset_offset.setToolTip("reset the offset correction to 0")
         reset_skew = QtWidgets.QToolButton(text="⟲")
@@ -119,6 +123,7 @@ class CorrectionPanel(QtWidgets.QWidget):
         form.addWidget(self.skew_spin, 3, 1)
         form.addWidget(self.auto_button, 3, 2)
         form.addWidget(reset_skew, 3, 3)
+        form.addWidget(self.edges_button, 4, 1, 1, 2)
         self.offset_spin.valueChanged.connect(lambda v: self._set_offset(int(v)))
         self.offset_step.currentIndexChanged.connect(lambda _: self.offset_spin.setSingleStep(self.offset_step.currentData()))
         self.offset_spin.setSingleStep(self.offset_step.currentData())
@@ -127,6 +132,7 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.offset_fine.toggled.connect(self._fine_toggled)
         self.skew_spin.valueChanged.connect(lambda v: None if self._updating else self.session.set_skew_correction_ppm(v))
         self.auto_button.clicked.connect(self.autoSyncRequested)
+        self.edges_button.clicked.connect(self.edgeSyncRequested)
         reset_offset.clicked.connect(lambda: self.session.reset("offset_us"))
         reset_skew.clicked.connect(lambda: self.session.reset("skew_ppm"))
         return g

@@ -187,3 +187,37 @@ def test_late_results_after_reopen_do_not_crash(qtbot, window, scene_copy):
     wait_frame(qtbot, window)
     qtbot.waitUntil(window.spacetime_drawn, timeout=30_000)
     assert window.frame.window.t_label_us == s2.view.window().t_label_us
+
+
+def test_auto_sync_then_edges_is_a_second_undo_step(qtbot, window, scene_copy):
+    """Auto, accepted with "then refine from edges": the edge fit starts from the estimate and is
+    its own proposal and undo step. The tiny scene's object poses are 5 mm / 3 deg off, so they
+    are set to the truth first (the edges assume right poses)."""
+    from core.corrections import Corrections
+    from core.geometry import inv_T
+    from core.scene import Scene
+
+    gt = load_ground_truth(scene_copy)
+    sc = Scene.open(scene_copy)
+    doc = Corrections()
+    for n in sc.object_names:
+        doc.object_deltas[n] = np.asarray(gt["objects"][n]["T_base_obj"]) @ inv_T(sc.manifest.object(n).T_base_obj)
+    sc.close()
+    doc.save(scene_copy / "corrections.json")
+    s = window.controller.open_scene(scene_copy)
+    window.auto_answer["sync_edges"] = True
+    window.panel.auto_button.click()
+    qtbot.waitUntil(lambda: window.align.last_clock_refine is not None, timeout=120_000)
+    sync, edges = window.align.last_sync, window.align.last_clock_refine
+    assert sync.reliable and edges.kind == "offset" and edges.accepted, edges.reason
+    assert len(s.history) == 2 and s.history.undo_text == "clock from edges"
+    assert s.scene.clock.offset_us == edges.offset_us
+    assert abs(edges.offset_us - gt["clock"]["offset_us"]) < 1000
+    window.actions_by_name["undo"].trigger()
+    assert s.scene.clock.offset_us == sync.offset_us           # back to the rate estimate
+    # the menu action refines around the clock in effect when it is not the last estimate
+    s.set_offset_correction_us(s.scene.corrections.offset_us + 800)
+    window.align.last_clock_refine = None
+    window.actions_by_name["edge_sync"].trigger()
+    qtbot.waitUntil(lambda: window.align.last_clock_refine is not None, timeout=120_000)
+    assert window.align.last_clock_refine.kind == "offset"

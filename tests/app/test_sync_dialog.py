@@ -46,3 +46,42 @@ def test_unreliable_result_cannot_be_accepted(qtbot):
     dlg = SyncDialog(None, _result(None, reliable=False), 0, 0.0)
     qtbot.addWidget(dlg)
     assert "No reliable estimate" in dlg.verdict.text() and not dlg.accept_button.isEnabled()
+
+
+def test_then_edges_choice(qtbot):
+    from app.align import SyncDialog
+
+    dlg = SyncDialog(None, _result(150.0), 0, 0.0, has_objects=True)
+    qtbot.addWidget(dlg)
+    assert dlg.then_edges.isEnabled() and dlg.then_edges.isChecked()
+    for res, objects in ((_result(150.0), False), (_result(None, reliable=False), True)):
+        d = SyncDialog(None, res, 0, 0.0, has_objects=objects)
+        qtbot.addWidget(d)
+        assert not d.then_edges.isEnabled() and not d.then_edges.isChecked()
+
+
+def _offset_result(accepted, skew_estimated=False):
+    from core.refine import RefineResult
+
+    return RefineResult("offset", None, offset_us=-57_640 if accepted else -58_000,
+                        offset_std_us=85.0 if accepted else None, skew_ppm=12.5 if accepted else None,
+                        skew_std_ppm=4.0 if accepted else None, skew_estimated=skew_estimated,
+                        objective_before=0.031, objective_after=0.034, n_windows=24, runtime_s=6.2,
+                        accepted=accepted, reason="" if accepted else "no window with camera motion")
+
+
+@pytest.mark.parametrize("accepted, fitted", [(True, True), (True, False), (False, False)])
+def test_clock_refine_dialog(qtbot, accepted, fitted):
+    from PySide6 import QtWidgets
+
+    from app.align import ClockRefineDialog
+
+    dlg = ClockRefineDialog(None, _offset_result(accepted, fitted), -58_000, 0.0)
+    qtbot.addWidget(dlg)
+    labels = " | ".join(w.text() for w in dlg.findChildren(QtWidgets.QLabel))
+    assert dlg.accept_button.isEnabled() == accepted
+    if accepted:
+        assert "-57.640 ms  ± 0.085 ms (1σ)" in labels and "object poses are right" in dlg.verdict.text()
+        assert ("fitted from the windows" in labels) == fitted and ("kept" in labels) == (not fitted)
+    else:
+        assert "Clock kept" in dlg.verdict.text() and "no window" in dlg.verdict.text()
