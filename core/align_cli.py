@@ -114,9 +114,7 @@ def _edges_line(r, label: str = "edges") -> str:
         return f"{label}: start kept ({r.reason})"
     std = r.offset_std_us
     pm = "" if std is None or not math.isfinite(std) else f" ± {std:.0f} us (1 sigma)"
-    sk = f"{r.skew_ppm:.2f} ppm" + (" (fitted" + (f", ± {r.skew_std_ppm:.1f} ppm)" if r.skew_std_ppm is not None
-                                                  and math.isfinite(r.skew_std_ppm) else ")")
-                                   if r.skew_estimated else " (kept)")
+    sk = f"{r.skew_ppm:.2f} ppm " + (f"(fitted, ± {r.skew_std_ppm:.1f} ppm)" if r.skew_estimated else "(kept)")
     return (f"{label}: offset {r.offset_us} us{pm}, skew {sk}; {r.n_windows} windows, {r.runtime_s:.1f} s "
             "(assumes the object poses are right)")
 

@@ -404,11 +404,13 @@ def _window_speeds_px_s(scene, centres_us: np.ndarray, window_us: int, clock, pr
     return proxy.mean_over(a, b)
 
 
-def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=None, min_px_s: float | None = None):
+def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=None, min_px_s: float | None = None,
+                   proxy=None):
     """``n_windows`` windows of ``window_us`` spread evenly over the moving part of the sequence
     (image speed above ``min_px_s``, default :data:`MIN_WINDOW_PX_S` at half DAVIS346 resolution
     scaled by ``fx / 146``, lowered to a quarter of the sequence's fast speed on slow sequences,
-    and, when ``objects`` are given, at least one of them in front of the camera).
+    and, when ``objects`` are given, at least one of them in front of the camera). ``proxy``:
+    the scene's :func:`core.sync.scene_motion_proxy` when the caller has it.
     Returns a list of ``(t0_us, t1_us)``."""
     ev = scene.events
     if ev.t_first_us is None or ev.t_last_us - ev.t_first_us < window_us:
@@ -417,7 +419,7 @@ def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=No
     grid = np.arange(ev.t_first_us + window_us, ev.t_last_us - window_us, max(window_us // 2, 500), dtype=np.int64)
     if len(grid) == 0:
         return []
-    sp, ok = _window_speeds_px_s(scene, grid, window_us, clock)
+    sp, ok = _window_speeds_px_s(scene, grid, window_us, clock, proxy)
     if min_px_s is None:
         # a slow sequence (low resolution, far scene) still has its faster half
         fast = float(np.percentile(sp[ok], 95)) if ok.any() else 0.0
@@ -800,13 +802,11 @@ OFFSET_WINDOW_PX = 1.0
 MAX_OFFSET_WINDOW_US = 50_000
 
 
-def offset_window_us(scene, window_us: int) -> int:
+def offset_window_us(proxy, window_us: int) -> int:
     """Window length for :func:`refine_offset`: ``window_us``, lengthened on slow sequences so the
-    image moves :data:`OFFSET_WINDOW_PX` at the fast (95th percentile) image speed."""
-    from .sync import scene_motion_proxy
-
-    v = scene_motion_proxy(scene).value
-    v = v[v > 0]
+    image moves :data:`OFFSET_WINDOW_PX` at the fast (95th percentile) speed of the scene's
+    motion ``proxy`` (:func:`core.sync.scene_motion_proxy`)."""
+    v = proxy.value[proxy.value > 0]
     if len(v) == 0:
         return int(window_us)
     fast = float(np.percentile(v, 95))
@@ -832,15 +832,18 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
     offsets. The fitted skew is taken when the windows pin it (:data:`SKEW_EDGE_MAX_STD_PPM`)
     or when it stands out by :data:`SKEW_EDGE_SIGMAS` standard errors (``skew_range_ppm=0``
     keeps the start's). Standard errors are jackknifed over the windows
-    (:func:`_jackknife_clock`; they grow when windows disagree, e.g. because a pose is off).
+    (:func:`_jackknife_clock`; they grow when windows disagree, but a pose error that shifts all
+    windows alike does not show in them).
 
     Returns the total offset in ``offset_us`` (at the clock's reference time), its standard
     error in ``offset_std_us`` and the skew in ``skew_ppm``.
     """
+    from .sync import scene_motion_proxy
     from .trajectory import ClockModel
 
     t_start = time.perf_counter()
     clock0 = clock or scene.clock
+    proxy = scene_motion_proxy(scene)
 
     def at(o):
         return ClockModel(int(round(o)), clock0.skew_ppm, clock0.t_ref_us)
@@ -848,8 +851,8 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
     result = RefineResult("offset", None, offset_us=int(clock0.offset_us))
     window_us = params.window_us
     if windows is None:
-        window_us = offset_window_us(scene, params.window_us)
-        windows = choose_windows(scene, params.n_windows, window_us, scene.object_names, clock0)
+        window_us = offset_window_us(proxy, params.window_us)
+        windows = choose_windows(scene, params.n_windows, window_us, scene.object_names, clock0, proxy=proxy)
     result.n_windows = len(windows)
     if not windows:
         result.reason = "no window with camera motion"
@@ -857,7 +860,7 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
         return result
     setup = _Setup(scene, scene.object_names, windows, clock0, params)
     T_bo = [scene.T_base_obj(n) for n in scene.object_names]
-    sp, ok = _window_speeds_px_s(scene, np.array([w.t_label for w in setup.wins]), window_us, clock0)
+    sp, ok = _window_speeds_px_s(scene, np.array([w.t_label for w in setup.wins]), window_us, clock0, proxy)
     v_px_s = float(np.median(sp[ok])) if ok.any() else 0.0
     v_px_us = max(v_px_s, 1.0) * 1e-6
     off = float(clock0.offset_us)
@@ -902,21 +905,21 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
     _, beta_f, _ = _evaluate(setup, T_bo, None, sig, None, clock=at(off), contours=contours)
     parts = np.stack([_evaluate(setup, T_bo, None, sig, beta_f, clock=at(o), contours=contours,
                                 per_window=True)[3] for o in grid])
-    zero = np.zeros(1)
-    fit_off, _ = _clock_fit(grid, parts, tau, zero)
-    off_std, _ = _jackknife_clock(grid, parts, tau, zero)
     skew = k0
     if n_drift > 0:
-        # the skew too, when the windows pin it (SKEW_EDGE_MAX_STD_PPM) or show it beyond
+        # the skew too, taken when the windows pin it (SKEW_EDGE_MAX_STD_PPM) or show it beyond
         # SKEW_EDGE_SIGMAS standard errors
         dk_grid = np.linspace(-skew_range_ppm, skew_range_ppm, int(np.clip(2 * n_drift + 1, 5, 61)))
-        o2, dk = _clock_fit(grid, parts, tau, dk_grid)
-        o2_std, dk_std = _jackknife_clock(grid, parts, tau, dk_grid)
+        fit_off, dk = _clock_fit(grid, parts, tau, dk_grid)
+        off_std, dk_std = _jackknife_clock(grid, parts, tau, dk_grid)
         result.skew_std_ppm = dk_std
-        if np.isfinite(dk) and np.isfinite(dk_std) and (abs(dk) > SKEW_EDGE_SIGMAS * dk_std
-                                                         or dk_std <= SKEW_EDGE_MAX_STD_PPM):
-            fit_off, off_std, skew = o2, o2_std, k0 + dk
-            result.skew_estimated = True
+        result.skew_estimated = bool(np.isfinite(dk) and np.isfinite(dk_std)
+                                     and (abs(dk) > SKEW_EDGE_SIGMAS * dk_std or dk_std <= SKEW_EDGE_MAX_STD_PPM))
+        if result.skew_estimated:
+            skew = k0 + dk
+    if not result.skew_estimated:
+        fit_off, _ = _clock_fit(grid, parts, tau, np.zeros(1))
+        off_std, _ = _jackknife_clock(grid, parts, tau, np.zeros(1))
     if progress is not None:
         progress(1.0, f"offset: peak fit -> {fit_off:.0f} us")
     start_inside = bool(grid[0] <= clock0.offset_us <= grid[-1])

@@ -223,8 +223,11 @@ def test_choose_windows(tiny):
     # ... but an explicit threshold is kept
     assert refine.choose_windows(scene, 10, 10_000, ["box"], min_px_s=1e6) == []
     # the offset refinement lengthens windows on slow sequences only
-    assert refine.offset_window_us(scene, 10_000) == 10_000
-    assert refine.offset_window_us(scene, 100) > 100
+    from core.sync import scene_motion_proxy
+
+    proxy = scene_motion_proxy(scene)
+    assert refine.offset_window_us(proxy, 10_000) == 10_000
+    assert refine.offset_window_us(proxy, 100) > 100
 
 
 def test_cli_refine_apply(tiny_scene_dir, tmp_path):
