@@ -3,7 +3,9 @@
 :func:`add_align_parsers` registers the three sub-commands on the ``evpose`` sub-parser set;
 each handler returns an exit status and prints exactly one JSON document on stdout with
 ``--json`` (messages go to stderr). ``--apply`` runs the change through a
-:class:`core.history.History` as one undo step and saves ``corrections.json`` beside the scene.
+:class:`core.history.History` as one undo step and saves ``corrections.json`` beside the scene through
+:meth:`core.scene.Scene.save_corrections` (revision check: another program's edits saved meanwhile are
+merged, a real conflict is refused with exit status 2 and one line naming the field and both values).
 """
 from __future__ import annotations
 
@@ -39,6 +41,22 @@ def _open(path):
     return Scene.open(path)
 
 
+def _save(scene, data: dict) -> str:
+    """Save the applied corrections through the one checked save path (revision check, merge with
+    another program's edits saved meanwhile, or a refusal naming the conflict: raised as
+    ``CorrectionsConflict``, a ``CorrectionsError``, so the CLI exits 2 with one line). Fills
+    ``data["saved"]``, ``data["revision"]``, ``data["merged_from_disk"]``; returns the text line."""
+    path = scene.save_corrections()
+    report = scene.corrections.last_save
+    data["saved"] = str(path)
+    data["revision"] = report.revision
+    data["merged_from_disk"] = list(report.from_disk)
+    line = f"applied and saved to {path} (revision {report.revision})"
+    if report.from_disk:
+        line += f"; kept {', '.join(report.from_disk)} saved meanwhile by another program"
+    return line
+
+
 def _progress(args):
     if getattr(args, "quiet", False) or getattr(args, "json", False):
         return None
@@ -55,6 +73,7 @@ def cmd_sync(args) -> int:
     from .sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
 
     scene = _open(args.scene)
+    saved_line = ""
     try:
         res = sync_scene(scene, range_ms=args.range_ms, bin_us=args.bin_us)
         data = res.to_json(curve=args.curve)
@@ -80,7 +99,7 @@ def cmd_sync(args) -> int:
                 applied = (apply_offset_result(history, scene, edges, "clock sync (rate, then edges)")
                            if edges is not None and edges.accepted else apply_sync(history, scene, res))
                 if applied:
-                    data["saved"] = str(scene.save_corrections())
+                    saved_line = _save(scene, data)
             else:
                 print(f"evpose sync: not applied: {res.reason}", file=sys.stderr)
         data["applied"] = applied
@@ -103,7 +122,7 @@ def cmd_sync(args) -> int:
         text += (f"\nbaseline (E-POSE minima matching): offset {b['offset_us']} us"
                  if b["reliable"] else f"\nbaseline: no estimate ({b['reason']})")
     if applied:
-        text += f"\napplied and saved to {data['saved']}"
+        text += "\n" + saved_line
     _emit(args, data, text)
     return 0
 
@@ -164,8 +183,7 @@ def cmd_refine(args) -> int:
             print("", file=sys.stderr)
         out["applied"] = bool(args.apply and changed)
         if out["applied"]:
-            out["saved"] = str(scene.save_corrections())
-            lines.append(f"applied and saved to {out['saved']}")
+            lines.append(_save(scene, out))
     finally:
         scene.close()
     _emit(args, out, "\n".join(lines))

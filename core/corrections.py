@@ -5,67 +5,60 @@ What is corrected (all optional, identity by default):
 * ``offset_us`` (int) and ``skew_ppm`` (float): added to the scene's clock prior;
 * per-object pose deltas ``dT_base`` (4x4, base frame): ``T_base_obj' = dT_base @ T_base_obj``;
 * a hand-eye delta ``dT_cam`` (4x4, camera frame): ``T_base_cam' = T_base_cam @ dT_cam``;
-* review marks over event-time intervals ``[t0_us, t1_us)``: verified / rejected / flagged.
+* review marks over event-time intervals ``[t0_us, t1_us)``: verified / rejected / flagged
+  (rules in :mod:`core.review`).
 
-The raw data is never touched. Saving is atomic (temp file, fsync, rename). JSON numbers are
-written with Python's shortest round-trip repr, so offsets of 10 s and skews of 1000 ppm come
-back bit-identical.
+The raw data is never touched. JSON numbers are written with Python's shortest round-trip repr, so
+offsets of 10 s and skews of 1000 ppm come back bit-identical.
+
+Revision and concurrent writers
+-------------------------------
+The file carries ``"revision"`` (1, 2, ... one more per save; files without it are revision 0 and
+are read as before). A document remembers what the file held when it was loaded or last saved
+(:attr:`Corrections.base`). :meth:`Corrections.save` goes through :func:`core.corrections_file.save`:
+under a lock it re-reads the file, and if another program changed it meanwhile, merges the two
+edits field by field against that base (:mod:`core.corrections_merge`) or refuses with both values
+named; the write is atomic and durable (temp file, fsync, rename, fsync of the directory) and goes
+through a symlinked ``corrections.json`` to its target.
+
+Object names the scene does not have are kept in the file (and written back) but not applied;
+:meth:`Corrections.load` warns about each (:class:`CorrectionsWarning`) when given the scene's names.
 """
 from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from .fileio import atomic_write_text
 from .geometry import GeometryError, validate_T
+from .review import REVIEW_STATUSES, MarkState, ReviewMark, effective_status, normalize_marks
+
+__all__ = ["CORRECTIONS_FORMAT", "CORRECTIONS_FILENAME", "REVIEW_STATUSES", "Corrections", "CorrectionsError",
+           "CorrectionsWarning", "ReviewMark", "MarkState"]
 
 CORRECTIONS_FORMAT = "evpose-corrections/1"
 CORRECTIONS_FILENAME = "corrections.json"
-REVIEW_STATUSES = ("verified", "rejected", "flagged")
 #: Tolerance for deltas read back from JSON: they were orthonormal when written.
 _DELTA_TOLERANCE = 1e-6
+#: Largest clock offset accepted (2**53 us, 285 years: exact in float64, no int64 overflow downstream).
+MAX_OFFSET_US = 2 ** 53
+#: Largest clock skew accepted (ppm).
+MAX_SKEW_PPM = 1e6
+#: Keys of the canonical document that a three-way merge compares (everything the user edits).
+DOCUMENT_KEYS = ("clock", "objects", "hand_eye", "reviews")
 
 
 class CorrectionsError(ValueError):
     """A corrections file that cannot be used; the message names the file and the field."""
 
 
-@dataclass(frozen=True)
-class ReviewMark:
-    """A review decision over the event-time interval ``[t0_us, t1_us)``.
-
-    ``object`` is None for a mark that covers every object.
-    """
-
-    t0_us: int
-    t1_us: int
-    status: str
-    note: str = ""
-    object: str | None = None
-
-    def __post_init__(self):
-        if self.status not in REVIEW_STATUSES:
-            raise ValueError(f"status must be one of {REVIEW_STATUSES}, got {self.status!r}")
-        if int(self.t1_us) <= int(self.t0_us):
-            raise ValueError(f"review interval must have t1_us > t0_us, got [{self.t0_us}, {self.t1_us})")
-        object.__setattr__(self, "t0_us", int(self.t0_us))
-        object.__setattr__(self, "t1_us", int(self.t1_us))
-
-    def covers(self, t_us: int) -> bool:
-        return self.t0_us <= t_us < self.t1_us
-
-    def to_json(self) -> dict:
-        d = {"t0_us": self.t0_us, "t1_us": self.t1_us, "status": self.status}
-        if self.note:
-            d["note"] = self.note
-        if self.object is not None:
-            d["object"] = self.object
-        return d
+class CorrectionsWarning(UserWarning):
+    """Something in a corrections file that is kept but not used (e.g. an unknown object name)."""
 
 
 @dataclass(eq=False)
@@ -75,6 +68,14 @@ class Corrections:
     Mutate only through the ``set_*``/``*_review`` methods (normally via :mod:`core.history`
     commands) so listeners are told what changed: ``"clock"``, ``"object:<name>"``,
     ``"hand_eye"`` or ``"reviews"``.
+
+    Attributes
+    ----------
+    revision : int
+        Revision of ``corrections.json`` this document was loaded from or last saved as (0: none).
+    base : dict or None
+        :meth:`canonical` form of the file's content at that moment (None: there was no file).
+        A save compares the file on disk with it to detect another writer.
     """
 
     offset_us: int = 0
@@ -83,9 +84,16 @@ class Corrections:
     hand_eye_delta: np.ndarray = field(default_factory=lambda: np.eye(4))
     reviews: list[ReviewMark] = field(default_factory=list)
     scene_name: str | None = None
+    revision: int = 0
 
     def __post_init__(self):
         self._listeners: list[Callable[[str], None]] = []
+        self.reviews = normalize_marks(self.reviews)
+        self.base: dict | None = None
+        #: ``(st_dev, st_ino, st_mtime_ns, st_size)`` of the file after our last load or save.
+        self.disk_signature: tuple | None = None
+        #: :class:`core.corrections_file.SaveReport` of the last :meth:`save` (None before).
+        self.last_save = None
 
     # ------------------------------------------------------------------ observation
     def subscribe(self, callback: Callable[[str], None]) -> Callable[[], None]:
@@ -102,6 +110,11 @@ class Corrections:
         """``dT_base`` of an object (identity when uncorrected); a copy."""
         d = self.object_deltas.get(name)
         return np.eye(4) if d is None else d.copy()
+
+    def keys(self) -> list[tuple]:
+        """Every command key of the document (objects: those with a correction)."""
+        return ([("offset_us",), ("skew_ppm",), ("hand_eye",), ("reviews",)]
+                + [("object", n) for n in sorted(self.object_deltas)])
 
     def get(self, key: tuple):
         """Value at a command key: ``("offset_us",)``, ``("skew_ppm",)``, ``("object", name)``,
@@ -126,14 +139,11 @@ class Corrections:
             self.offset_us = _as_int_us(value, "offset_us")
             self._changed("clock")
         elif kind == "skew_ppm":
-            v = float(value)
-            if not math.isfinite(v):
-                raise ValueError("skew_ppm must be finite")
-            self.skew_ppm = v
+            self.skew_ppm = _as_skew(value)
             self._changed("clock")
         elif kind == "object":
             T = np.array(value, dtype=np.float64)
-            if np.allclose(T, np.eye(4), rtol=0, atol=0):
+            if np.array_equal(T, np.eye(4)):
                 self.object_deltas.pop(key[1], None)
             else:
                 self.object_deltas[key[1]] = T
@@ -142,35 +152,53 @@ class Corrections:
             self.hand_eye_delta = np.array(value, dtype=np.float64)
             self._changed("hand_eye")
         elif kind == "reviews":
-            self.reviews = list(value)
+            self.reviews = normalize_marks(value)
             self._changed("reviews")
         else:
             raise KeyError(key)
 
+    def differing_keys(self, other: "Corrections") -> list[tuple]:
+        """Command keys whose values differ between ``self`` and ``other`` (exact comparison)."""
+        out = []
+        for key in (("offset_us",), ("skew_ppm",), ("hand_eye",), ("reviews",)):
+            a, b = self.get(key), other.get(key)
+            same = np.array_equal(a, b) if key == ("hand_eye",) else (
+                set(a) == set(b) if key == ("reviews",) else a == b)
+            if not same:
+                out.append(key)
+        for n in sorted(set(self.object_deltas) | set(other.object_deltas)):
+            if not np.array_equal(self.object_delta(n), other.object_delta(n)):
+                out.append(("object", n))
+        return out
+
     def review_status(self, t_us: int, obj: str | None = None) -> str | None:
-        """Status of the most recently added mark covering ``t_us`` (for ``obj`` or all objects)."""
-        for mark in reversed(self.reviews):
-            if mark.covers(t_us) and (mark.object is None or obj is None or mark.object == obj):
-                return mark.status
-        return None
+        """Effective review status at ``t_us`` for ``obj`` (see :func:`core.review.effective_status`)."""
+        return effective_status(self.reviews, t_us, obj)
 
     def is_identity(self) -> bool:
         return (self.offset_us == 0 and self.skew_ppm == 0.0 and not self.object_deltas
                 and np.array_equal(self.hand_eye_delta, np.eye(4)) and not self.reviews)
 
     def copy(self) -> "Corrections":
+        """An independent copy of the values (no listeners, no disk state)."""
         return Corrections.from_json(self.to_json())
 
     # ------------------------------------------------------------------ JSON
     def to_json(self) -> dict:
         return {
             "format": CORRECTIONS_FORMAT,
+            "revision": int(self.revision),
             "scene": self.scene_name,
             "clock": {"offset_us": int(self.offset_us), "skew_ppm": float(self.skew_ppm)},
             "objects": {name: {"dT_base": T.tolist()} for name, T in sorted(self.object_deltas.items())},
             "hand_eye": {"dT_cam": self.hand_eye_delta.tolist()},
             "reviews": [m.to_json() for m in self.reviews],
         }
+
+    def canonical(self) -> dict:
+        """The edited content only (no format, revision or scene name): equal for equal documents."""
+        d = self.to_json()
+        return {k: d[k] for k in DOCUMENT_KEYS}
 
     @classmethod
     def from_json(cls, data: dict, source: str = "corrections.json") -> "Corrections":
@@ -179,6 +207,9 @@ class Corrections:
         fmt = data.get("format")
         if fmt != CORRECTIONS_FORMAT:
             raise CorrectionsError(f"{source}: format: expected {CORRECTIONS_FORMAT!r}, got {fmt!r}")
+        revision = data.get("revision", 0)
+        if isinstance(revision, bool) or not isinstance(revision, int) or revision < 0:
+            raise CorrectionsError(f"{source}: revision: expected an integer >= 0, got {revision!r}")
         clock = data.get("clock", {})
         if not isinstance(clock, dict):
             raise CorrectionsError(f"{source}: clock: expected an object")
@@ -186,9 +217,10 @@ class Corrections:
             offset = _as_int_us(clock.get("offset_us", 0), "offset_us")
         except ValueError as exc:
             raise CorrectionsError(f"{source}: clock.offset_us: {exc}") from None
-        skew = clock.get("skew_ppm", 0.0)
-        if isinstance(skew, bool) or not isinstance(skew, (int, float)) or not math.isfinite(skew):
-            raise CorrectionsError(f"{source}: clock.skew_ppm: expected a finite number, got {skew!r}")
+        try:
+            skew = _as_skew(clock.get("skew_ppm", 0.0))
+        except ValueError as exc:
+            raise CorrectionsError(f"{source}: clock.skew_ppm: {exc}") from None
         deltas = {}
         objects = data.get("objects", {})
         if not isinstance(objects, dict):
@@ -208,38 +240,95 @@ class Corrections:
             raise CorrectionsError(f"{source}: reviews: expected a list")
         for i, r in enumerate(raw_reviews):
             try:
-                reviews.append(ReviewMark(int(r["t0_us"]), int(r["t1_us"]), str(r["status"]),
-                                          str(r.get("note", "")), r.get("object")))
+                if not isinstance(r, dict):
+                    raise TypeError("expected an object with t0_us, t1_us and status")
+                t0, t1 = (_as_int_us(r[k], k) for k in ("t0_us", "t1_us"))
+                at = MarkState.from_json(r["at"]) if "at" in r else None
+                reviews.append(ReviewMark(t0, t1, str(r["status"]), str(r.get("note", "")), r.get("object"), at))
             except KeyError as exc:
                 raise CorrectionsError(f"{source}: reviews[{i}].{exc.args[0]}: missing") from None
-            except (TypeError, ValueError) as exc:
+            except (TypeError, ValueError, OverflowError) as exc:
                 raise CorrectionsError(f"{source}: reviews[{i}]: {exc}") from None
-        return cls(offset, float(skew), deltas, hand_eye, reviews, data.get("scene"))
+        # files without a revision predate the review rules: later marks won across scopes there
+        reviews = normalize_marks(reviews, legacy="revision" not in data)
+        return cls(offset, skew, deltas, hand_eye, reviews, data.get("scene"), revision)
 
-    def save(self, path) -> Path:
-        """Write atomically (temp + fsync + rename)."""
-        return atomic_write_text(path, json.dumps(self.to_json(), indent=1) + "\n")
+    def unknown_objects(self, known) -> list[tuple[str, str]]:
+        """``(field, name)`` of every object name used here that is not in ``known``."""
+        known = set(known)
+        out = [(f"objects.{n}", n) for n in sorted(self.object_deltas) if n not in known]
+        out += [(f"reviews[{i}].object", m.object) for i, m in enumerate(self.reviews)
+                if m.object is not None and m.object not in known]
+        return out
+
+    def save(self, path, *, apply_merge: Callable[["Corrections"], None] | None = None,
+             prefer: str | None = None) -> Path:
+        """Save through :func:`core.corrections_file.save`: revision check, merge or refusal
+        (:class:`~core.corrections_merge.CorrectionsConflict`), atomic durable write (through a
+        symlink to its target). If another program's edits were merged, ``apply_merge(merged)``
+        brings this document to the merged state (default :meth:`assign`; the app goes through its
+        undo history). The :class:`~core.corrections_file.SaveReport` is kept in :attr:`last_save`."""
+        from .corrections_file import save
+
+        report = save(path, self, prefer=prefer)
+        if report.merged is not None:
+            (apply_merge or self.assign)(report.merged)
+        self.mark_saved(report)
+        self.last_save = report
+        return Path(path)
+
+    def assign(self, other: "Corrections") -> list[tuple]:
+        """Take every value of ``other`` that differs (through :meth:`set`); returns the keys set."""
+        keys = self.differing_keys(other)
+        for key in keys:
+            self.set(key, other.get(key))
+        return keys
+
+    def mark_saved(self, report) -> None:
+        """Record that the file now holds ``report.written`` (a :class:`core.corrections_file.SaveReport`)."""
+        self.revision = report.revision
+        self.base = report.written.canonical()
+        self.disk_signature = report.signature
 
     @classmethod
-    def load(cls, path) -> "Corrections":
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise CorrectionsError(f"{path}: cannot read ({exc.strerror})") from None
-        except json.JSONDecodeError as exc:
-            raise CorrectionsError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
-        return cls.from_json(data, source=str(path))
+    def load(cls, path, known_objects=None) -> "Corrections":
+        """Read ``path`` (following a symlink); with ``known_objects`` (the scene's object names),
+        warn about each object name the scene does not have (kept, not applied)."""
+        from .corrections_file import read
+
+        doc, signature = read(path)
+        if doc is None:
+            raise CorrectionsError(f"{path}: cannot read (no such file)")
+        doc.base = doc.canonical()
+        doc.disk_signature = signature
+        if known_objects is not None:
+            for fld, name in doc.unknown_objects(known_objects):
+                warnings.warn(f"{path}: {fld}: no object named {name!r} in the scene; kept in the file but "
+                              "not applied", CorrectionsWarning, stacklevel=2)
+        return doc
 
 
 def _as_int_us(value, name: str) -> int:
     if isinstance(value, bool):
         raise ValueError(f"{name} must be an integer number of microseconds, got {value!r}")
     if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)) and math.isfinite(value) and float(value).is_integer():
-        return int(value)
-    raise ValueError(f"{name} must be an integer number of microseconds, got {value!r}")
+        v = int(value)
+    elif isinstance(value, (float, np.floating)) and math.isfinite(value) and float(value).is_integer():
+        v = int(value)
+    else:
+        raise ValueError(f"{name} must be an integer number of microseconds, got {value!r}")
+    if abs(v) > MAX_OFFSET_US:
+        raise ValueError(f"{name} must be within +-2**53 us (285 years), got {value!r}")
+    return v
+
+
+def _as_skew(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"expected a finite number of ppm, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or abs(v) > MAX_SKEW_PPM:
+        raise ValueError(f"expected a finite number of ppm within +-{MAX_SKEW_PPM:g}, got {value!r}")
+    return v
 
 
 def _read_T(value, where: str) -> np.ndarray:

@@ -215,6 +215,22 @@ class History:
                 self._clean = self._clean - drop if self._clean >= drop else None
         self._notify()
 
+    def push_external(self, cmd: Command, clean: bool) -> None:
+        """Run and record an edit that another program made to the file (taken over on reload,
+        merge or save) as one undo step of its own, never merged with a neighbour.
+
+        ``clean``: the document now equals the file on disk (the new step becomes the saved state);
+        otherwise no state in the history equals the file any more (the clean index is dropped).
+        Undoing the step returns to the state before it, which then differs from the file."""
+        if self._group is not None:
+            raise RuntimeError("an external change cannot be recorded inside a group")
+        self._merge_open = False
+        cmd.redo(self.doc)
+        self._record(cmd)
+        self._merge_open = False
+        self._clean = self._index if clean else None
+        self._notify()
+
     def set(self, key: tuple, new, text: str | None = None, mergeable: bool = False) -> None:
         """Shorthand: push a :class:`SetValue` from the current value to ``new`` (no-op if equal)."""
         self.push(set_command(self.doc, key, new, text=text, mergeable=mergeable))

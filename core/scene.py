@@ -304,7 +304,8 @@ class Scene:
         manifest = load_manifest(path)
         if isinstance(corrections, str) and corrections == "auto":
             cpath = manifest.root / CORRECTIONS_FILENAME
-            corrections = Corrections.load(cpath) if cpath.exists() else None
+            corrections = (Corrections.load(cpath, known_objects=[o.name for o in manifest.objects])
+                           if cpath.exists() or cpath.is_symlink() else None)
         return cls(manifest, corrections)
 
     # ------------------------------------------------------------------ resources
@@ -448,7 +449,13 @@ class Scene:
         return T, valid
 
     # ------------------------------------------------------------------ document
-    def save_corrections(self) -> Path:
-        """Save ``corrections.json`` beside the manifest (atomic)."""
+    def save_corrections(self, apply_merge=None, prefer: str | None = None) -> Path:
+        """Save ``corrections.json`` beside the manifest: the one save path of the CLI and the app.
+
+        Checks the revision on disk and merges another program's edits saved meanwhile, or refuses a
+        real conflict naming the field and both values (:class:`core.corrections_merge.CorrectionsConflict`);
+        atomic and durable; writes through a symlink. ``apply_merge(merged)`` applies merged edits to
+        the document (default: directly); details in ``self.corrections.last_save``
+        (see :mod:`core.corrections_file`)."""
         self.corrections.scene_name = self.name
-        return self.corrections.save(self.corrections_path)
+        return self.corrections.save(self.corrections_path, apply_merge=apply_merge, prefer=prefer)

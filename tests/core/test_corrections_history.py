@@ -41,8 +41,10 @@ def test_save_is_atomic_and_keeps_old_file_on_failure(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(fio.os, "replace", boom)
+    doc = Corrections.load(p)
+    doc.set(("offset_us",), 7)
     with pytest.raises(OSError):
-        Corrections(offset_us=7).save(p)
+        doc.save(p)
     assert Corrections.load(p).offset_us == 5
     assert [x.name for x in tmp_path.iterdir()] == ["corrections.json"]  # no temp left behind
 
