@@ -8,6 +8,17 @@ neither saved nor undoable (DESIGN section 2).
 
 Frame computation is a pure function of a :class:`FrameRequest` snapshot, so the app can run it
 in a worker thread while the user keeps editing; the snapshot carries a copy of the corrections.
+
+The current window is a cell of the export grid (windows of ``window_us`` from the first event,
+:func:`core.review.grid_window`), so what the user sees and marks is an export window.
+
+Changes another program saves to ``corrections.json`` (an ``evpose ... --apply``, a second app)
+come in through :meth:`Session.check_disk` and :meth:`Session.reload_from_disk` /
+:meth:`Session.merge_from_disk`, or through :meth:`Session.save`, which merges them. Each such
+change is **one undo step of its own, labelled** ("another program's change to corrections.json
+(revision N)"), recorded on top of the user's steps: undoing it returns to the state before it
+(which then differs from the file, so the window shows unsaved changes), and the steps below it
+stay consistent because each step records the values it replaced.
 """
 from __future__ import annotations
 
@@ -23,9 +34,13 @@ import numpy as np
 
 from . import represent
 from .annotate import Annotator, Request, Window, WindowLabels, label_time
-from .corrections import Corrections, CorrectionsError, ReviewMark
+from .corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError, ReviewMark
+from .corrections_file import read as read_corrections
+from .corrections_file import signature, target_of
+from .corrections_merge import MergeResult, field_name, merge
+from .review import grid_window, insert_mark, mark_state, stale_reasons
 from .events import EventArray
-from .history import History
+from .history import Group, History, SetValue
 from .overlay import (ObjectOverlay, axes_segments, box_segments, compose_masks_rgba, mask_contours,
                       object_color)
 from .pose_edit import hand_eye_step, nudge_step
@@ -51,10 +66,15 @@ class ViewState:
     spacetime_span_us: int = 100_000
     spacetime_budget: int = 300_000
     spacetime_slices: int = 12
+    #: Start of the window grid (the first event): windows are ``[origin + k w, origin + (k+1) w)``.
+    grid_origin_us: int = 0
 
-    def window(self, index: int = -1) -> Window:
-        t0 = int(self.t_us - self.window_us // 2)
-        return Window(index, t0, t0 + int(self.window_us), label_time(t0, t0 + int(self.window_us)))
+    def window(self, index: int | None = None) -> Window:
+        """The grid window holding ``t_us`` (the export's tiling for this window length); ``index``
+        defaults to its position in the grid."""
+        t0, t1 = grid_window(self.t_us, self.grid_origin_us, self.window_us)
+        k = (t0 - int(self.grid_origin_us)) // int(self.window_us) if index is None else index
+        return Window(k, t0, t1, label_time(t0, t1))
 
 
 @dataclass
@@ -85,6 +105,17 @@ class SpaceTimeData:
     span_us: int = 0
 
 
+@dataclass
+class ExternalChange:
+    """``corrections.json`` as another program saved it (see :meth:`Session.check_disk`)."""
+
+    revision: int
+    disk: Corrections
+    signature: tuple | None
+    #: Fields that differ from the state we last loaded or saved.
+    fields: list
+
+
 @dataclass(frozen=True)
 class FrameRequest:
     scene: Scene       # a snapshot: shares data, owns a copy of the corrections
@@ -99,7 +130,9 @@ class Session:
         self.scene = scene
         self.history = History(scene.corrections)
         t0, t1 = self.time_range
-        self.view = ViewState(t_us=min(t0 + ViewState.window_us // 2, t1))
+        self.view = ViewState(t_us=min(t0 + ViewState.window_us // 2, t1), grid_origin_us=t0)
+        #: Why the autosave journal was ignored (damaged), or None.
+        self.journal_problem: str | None = None
         self._listeners: list[Callable[[str], None]] = []
         scene.corrections.subscribe(self._doc_changed)
         self.history.subscribe(lambda h: self._emit("history"))
@@ -235,14 +268,30 @@ class Session:
 
     def add_review(self, status: str, t0_us: int | None = None, t1_us: int | None = None, note: str = "",
                    obj: str | None = None) -> ReviewMark:
-        """Mark ``[t0, t1)`` (default: the current window) verified / rejected / flagged."""
+        """Mark ``[t0, t1)`` (default: the current grid window) verified / rejected / flagged.
+
+        The mark replaces older marks of its scope on the overlap (:func:`core.review.insert_mark`:
+        no window is both verified and rejected, no duplicates) and records the clock and the
+        covered objects' pose digests (:func:`core.review.mark_state`) to detect staleness later."""
         w = self.view.window()
-        mark = ReviewMark(w.t0_us if t0_us is None else t0_us, w.t1_us if t1_us is None else t1_us, status, note, obj)
-        self.history.set(("reviews",), self.scene.corrections.reviews + [mark], text=f"mark {status}")
+        if obj is not None and obj not in self.object_names:
+            raise KeyError(obj)
+        mark = ReviewMark(w.t0_us if t0_us is None else t0_us, w.t1_us if t1_us is None else t1_us, status, note,
+                          obj, mark_state(self.scene, obj))
+        self.history.set(("reviews",), insert_mark(self.scene.corrections.reviews, mark), text=f"mark {status}")
         return mark
 
     def remove_review(self, mark: ReviewMark) -> None:
         self.history.set(("reviews",), [m for m in self.scene.corrections.reviews if m != mark], text="remove mark")
+
+    def stale_reasons(self, mark: ReviewMark, now=None) -> list[str]:
+        """Why ``mark`` no longer verifies the current labels (empty: it does); see :mod:`core.review`.
+        ``now``: :meth:`mark_state` when checking many marks."""
+        return stale_reasons(self.scene, mark, now=now)
+
+    def mark_state(self):
+        """The clock and pose digests now (:func:`core.review.mark_state`, all objects)."""
+        return mark_state(self.scene)
 
     def next_window_where(self, predicate: Callable[[str | None], bool], direction: int = 1) -> int | None:
         """Centre time of the next window (from the current one) whose review status satisfies
@@ -256,53 +305,170 @@ class Session:
             t += direction * w
         return None
 
-    # ------------------------------------------------------------------ saving and journal
-    def save(self) -> Path:
-        path = self.scene.save_corrections()
+    # ------------------------------------------------------------------ saving, other writers, journal
+    def save(self, prefer: str | None = None) -> Path:
+        """Save through :meth:`core.scene.Scene.save_corrections` (revision check). Another program's
+        edits saved meanwhile are merged in as one labelled undo step; a real conflict raises
+        :class:`core.corrections_merge.CorrectionsConflict` (nothing saved) unless ``prefer``
+        ("local" / "disk") resolves it."""
+        def take_merge(merged: Corrections) -> None:
+            rev = self.scene.corrections.revision
+            self._push_external(merged, f"merge another program's change to corrections.json (after revision {rev})",
+                                clean=True)
+
+        path = self.scene.save_corrections(apply_merge=take_merge, prefer=prefer)
         self.history.set_clean()
         self.discard_journal()
         return path
+
+    def _push_external(self, target: Corrections, text: str, clean: bool) -> list[tuple]:
+        doc = self.scene.corrections
+        keys = doc.differing_keys(target)
+        cmd = Group(text, [SetValue(k, doc.get(k), target.get(k)) for k in keys])
+        self.history.push_external(cmd, clean)
+        return keys
+
+    def check_disk(self) -> "ExternalChange | None":
+        """Has another program saved ``corrections.json`` since we loaded or saved it?
+
+        Cheap when nothing happened (one ``stat``). Returns the change, or None (also when the file
+        was saved with the content we know, e.g. by ourselves). Raises :class:`CorrectionsError`
+        when the file on disk cannot be read."""
+        doc = self.scene.corrections
+        path = self.scene.corrections_path
+        sig = signature(target_of(path))
+        if sig == doc.disk_signature:
+            return None
+        disk, sig = read_corrections(path)
+        if disk is None:
+            doc.disk_signature = None        # removed: nothing to take over; the next save recreates it
+            return None
+        base = self._base_doc()
+        if disk.canonical() == base.canonical():
+            doc.disk_signature = sig
+            doc.revision = disk.revision
+            return None
+        return ExternalChange(disk.revision, disk, sig, [field_name(k) for k in base.differing_keys(disk)])
+
+    def _base_doc(self) -> Corrections:
+        base = self.scene.corrections.base
+        if base is None:
+            return Corrections()
+        return Corrections.from_json({"format": CORRECTIONS_FORMAT, "revision": 0, **base})
+
+    def _take_disk_state(self, change: "ExternalChange") -> None:
+        doc = self.scene.corrections
+        doc.base = change.disk.canonical()
+        doc.revision = change.revision
+        doc.disk_signature = change.signature
+
+    def reload_from_disk(self, change: "ExternalChange") -> list[tuple]:
+        """Take the file's content, discarding unsaved local edits (one labelled undo step; the
+        document is then clean). Returns the keys that changed."""
+        keys = self._push_external(change.disk, f"reload corrections.json (revision {change.revision}, "
+                                                 "changed by another program)", clean=True)
+        self._take_disk_state(change)
+        self.history.set_clean()
+        return keys
+
+    def merge_from_disk(self, change: "ExternalChange", prefer: str | None = None) -> MergeResult:
+        """Apply another program's saved edits under the unsaved local ones (three-way merge against
+        the state last loaded or saved; one labelled undo step). A real conflict raises
+        :class:`core.corrections_merge.CorrectionsConflict` and changes nothing, unless ``prefer``."""
+        res = merge(self._base_doc(), self.scene.corrections, change.disk, prefer=prefer,
+                    source=str(self.scene.corrections_path))
+        clean = res.doc.canonical() == change.disk.canonical()
+        self._push_external(res.doc, f"merge another program's change to corrections.json "
+                                     f"(revision {change.revision})", clean=clean)
+        self._take_disk_state(change)
+        if clean:
+            self.history.set_clean()
+        return res
 
     @property
     def journal_path(self) -> Path:
         return self.scene.root / JOURNAL_NAME
 
     def write_journal(self) -> Path | None:
-        """Autosave unsaved corrections beside the scene (atomic); nothing when clean."""
+        """Autosave unsaved corrections beside the scene (atomic); nothing when clean.
+
+        The journal also holds the state the edits started from (``base``, ``base_revision``), so a
+        restore can merge with what was saved since."""
         if not self.dirty:
             return None
-        doc = self.scene.corrections.to_json()
-        doc["autosaved_at"] = time.time()
+        doc = self.scene.corrections
+        data = doc.to_json()
+        data["autosaved_at"] = time.time()
+        data["base"] = doc.base
+        data["base_revision"] = doc.revision
         from .fileio import atomic_write_text
 
         try:
-            return atomic_write_text(self.journal_path, json.dumps(doc, indent=1))
+            return atomic_write_text(self.journal_path, json.dumps(data, indent=1))
         except OSError:
             return None  # read-only scene folder: nothing to do, Save will tell the user
 
     def pending_journal(self) -> Corrections | None:
-        """Corrections autosaved by a session that did not save (e.g. after a crash)."""
+        """Corrections autosaved by a session that did not save (e.g. after a crash).
+
+        A journal that cannot be read back whole (cut short, not UTF-8, invalid) is ignored and
+        reported in :attr:`journal_problem` (it stays on disk until the next save or discard)."""
+        self.journal_problem = None
         p = self.journal_path
-        if not p.exists():
+        try:
+            raw = p.read_bytes()
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            self.journal_problem = f"{p}: cannot read the autosave journal ({exc.strerror}); ignored"
             return None
         try:
-            data = json.loads(p.read_text())
+            data = json.loads(raw.decode("utf-8"))
+            if not isinstance(data, dict):
+                raise CorrectionsError(f"{p}: expected a JSON object at the top level")
             data.pop("autosaved_at", None)
+            has_base = "base" in data                  # journals of earlier versions have none
+            base, base_rev = data.pop("base", None), data.pop("base_revision", None)
             journal = Corrections.from_json(data, source=str(p))
-        except (OSError, json.JSONDecodeError, CorrectionsError):
+            if has_base:
+                if base is None:                       # there was no corrections.json: the identity
+                    base = Corrections().canonical()
+                if not isinstance(base, dict):
+                    raise CorrectionsError(f"{p}: base: expected an object")
+                journal.base = Corrections.from_json({"format": CORRECTIONS_FORMAT, "revision": 0, **base},
+                                                     source=f"{p}: base").canonical()
+            journal.revision = base_rev if isinstance(base_rev, int) and not isinstance(base_rev, bool) else 0
+        except UnicodeDecodeError as exc:
+            self.journal_problem = f"{p}: autosave journal is not UTF-8 text (byte {exc.start}); ignored"
             return None
-        if journal.to_json() == self.scene.corrections.to_json():
+        except json.JSONDecodeError as exc:
+            self.journal_problem = (f"{p}: autosave journal is damaged or cut short (line {exc.lineno}, column "
+                                    f"{exc.colno}: {exc.msg}); ignored")
+            return None
+        except (CorrectionsError, RecursionError, TypeError, ValueError) as exc:
+            self.journal_problem = f"{p}: autosave journal is not usable ({exc}); ignored"
+            return None
+        if journal.canonical() == self.scene.corrections.canonical():
             return None
         return journal
 
-    def restore_journal(self, journal: Corrections) -> None:
-        """Apply autosaved corrections as one undoable step."""
+    def restore_journal(self, journal: Corrections) -> list:
+        """Apply autosaved corrections as one undoable step.
+
+        When the journal records the state its edits started from, it is merged with the current
+        document (which may hold changes another program saved since): the autosaved edits win
+        where both changed a field. Returns those conflicts (:class:`core.corrections_merge.Conflict`)."""
+        conflicts = []
+        target = journal
+        if journal.base is not None:
+            base = Corrections.from_json({"format": CORRECTIONS_FORMAT, "revision": 0, **journal.base})
+            res = merge(base, journal, self.scene.corrections, prefer="local", source=str(self.journal_path))
+            target, conflicts = res.doc, res.conflicts
+        doc = self.scene.corrections
         with self.history.group("restore autosaved corrections"):
-            for key in (("offset_us",), ("skew_ppm",), ("hand_eye",), ("reviews",)):
-                self.history.set(key, journal.get(key))
-            for name in set(self.object_names) | set(journal.object_deltas):
-                if name in self.object_names:
-                    self.history.set(("object", name), journal.object_delta(name))
+            for key in doc.differing_keys(target):
+                self.history.set(key, target.get(key))
+        return conflicts
 
     def discard_journal(self) -> None:
         try:

@@ -40,7 +40,7 @@ def make_writer(fmt: str, format_options: dict | None = None):
 def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, window_events: int | None = None,
                  label_at: str = "center", only_verified: bool = False, objects=None, margin_m: float = 0.0,
                  jobs: int = 1, force: bool = False, progress=None, cancel=None, format_options: dict | None = None,
-                 durable=True) -> ExportSummary:
+                 durable=True, include_stale: bool = False) -> ExportSummary:
     """Export a scene's corrected labels.
 
     Parameters
@@ -59,7 +59,12 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
         Label time of a window: its centre (default) or its end (E-POSE's timing).
     only_verified : bool
         Export only windows whose every instant is effectively ``verified`` for every exported object
-        (see :func:`core.export.common.verified_mask`).
+        by a mark that is not stale; partly covered windows are left out (see
+        :func:`core.export.common.review_usage`). The summary counts the windows verified marks
+        touch and why those not exported were left out.
+    include_stale : bool
+        With ``only_verified``: also use verified marks made before a later change of the clock or of
+        the object's pose (default False: such marks verified another label and are left out).
     objects : list of str or comma-separated str, optional
         Objects to export (default all). Objects not exported still occlude exported ones.
     margin_m : float
@@ -99,9 +104,11 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
         try:
             return run_export(scene, writer, out_dir, window_us=window_us, window_events=window_events,
                               label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
-                              jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel)
+                              jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel,
+                              include_stale=include_stale)
         finally:
             scene.close()
     return run_export(scene_or_path, writer, out_dir, window_us=window_us, window_events=window_events,
                       label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
-                      jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel)
+                      jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel,
+                      include_stale=include_stale)

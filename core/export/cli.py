@@ -39,7 +39,11 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--label-at", choices=("center", "end"), default="center",
                    help="label time: window centre (default) or end (E-POSE timing)")
     p.add_argument("--only-verified", action="store_true",
-                   help="export only windows fully covered by 'verified' review marks (no later rejection)")
+                   help="export only windows fully covered by 'verified' review marks (partly covered, partly "
+                        "rejected/flagged and stale-marked windows are left out and counted in the summary)")
+    p.add_argument("--include-stale", action="store_true",
+                   help="with --only-verified: also use verified marks made before a later change of the clock "
+                        "or of the object's pose (left out by default)")
     p.add_argument("--objects", metavar="A,B", help="comma-separated objects to export (default all)")
     p.add_argument("--margin-mm", type=float, default=0.0, metavar="X",
                    help="enlarge the 3D box by X mm on every side (keypoints)")
@@ -101,6 +105,12 @@ def summary_text(s) -> str:
     lines = [f"exported {s.format} to {s.out_dir}: {s.written} windows written, {s.skipped_complete} already complete "
              f"(skipped), {s.unlabeled} unlabeled, {s.filtered_unverified} not verified (left out) of "
              f"{s.windows_total} windows in {s.runtime_s:.1f} s ({rate:.1f} windows/s, {s.jobs} job{'s' * (s.jobs > 1)})"]
+    if s.review_marked:
+        exported = s.review_marked - s.review_unused
+        line = f"  verified marks touch {s.review_marked} window(s): {exported} exported"
+        if s.review_unused:
+            line += f", {s.review_unused} not used: " + "; ".join(f"{n} {r}" for r, n in s.review_unused_reasons.items())
+        lines.append(line)
     for reason, n in s.unlabeled_reasons.items():
         ids = [u["index"] for u in s.unlabeled_windows if u["reason"] == reason]
         shown = ", ".join(map(str, ids[:10])) + (", ..." if len(ids) > 10 else "")
@@ -136,6 +146,7 @@ def cmd_export(args) -> int:
     try:
         s = export_scene(args.scene, args.format, args.out, window_us=window_us, window_events=args.window_events,
                          label_at=args.label_at, only_verified=args.only_verified, objects=objects,
+                         include_stale=args.include_stale,
                          margin_m=args.margin_mm * 1e-3, jobs=args.jobs, force=args.force, progress=bar)
     except KeyboardInterrupt:
         bar.close()

@@ -68,7 +68,7 @@ from ..fileio import fsync_dir
 
 __all__ = [
     "EXPORT_LAYOUT_VERSION", "FORMATS", "STATE_DIR", "MANIFEST_NAME", "ExportError", "ExportSummary",
-    "FormatWriter", "WindowTask", "evpose_version", "build_windows", "verified_mask", "export_fingerprint",
+    "FormatWriter", "WindowTask", "evpose_version", "build_windows", "verified_mask", "review_usage", "export_fingerprint",
     "clean_temp_files", "AtomicBatch", "encode_png", "savemat_bytes", "run_export",
 ]
 
@@ -122,6 +122,15 @@ class ExportSummary:
         reason -> number of windows.
     filtered_unverified : int
         Windows left out by ``only_verified``.
+    review_marked : int
+        ``only_verified``: windows that a verified review mark overlaps (for an exported object).
+    review_unused : int
+        Of those, windows not exported (not selected, or selected without a label).
+    review_unused_reasons : dict
+        reason -> number of those windows (:data:`REVIEW_PARTLY`, :data:`REVIEW_MIXED`,
+        :data:`REVIEW_STALE`, :data:`REVIEW_NO_LABEL`).
+    include_stale : bool
+        ``only_verified``: stale verified marks counted as verified.
     runtime_s : float
     out_dir : str
     files : list of str
@@ -140,6 +149,10 @@ class ExportSummary:
     unlabeled_windows: list = field(default_factory=list)
     unlabeled_reasons: dict = field(default_factory=dict)
     filtered_unverified: int = 0
+    review_marked: int = 0
+    review_unused: int = 0
+    review_unused_reasons: dict = field(default_factory=dict)
+    include_stale: bool = False
     runtime_s: float = 0.0
     out_dir: str = ""
     files: list = field(default_factory=list)
@@ -172,55 +185,110 @@ def build_windows(store, *, window_us=10_000, window_events=None, label_at="cent
     return time_windows(store, int(window_us), label_at=label_at)
 
 
-def _status_pieces(reviews, obj: str) -> tuple[np.ndarray, list]:
-    """Piecewise-constant effective review status of one object: breakpoints (sorted int64) and the
-    status on ``[b[j], b[j+1])`` (None before the first breakpoint and after the last)."""
+#: Why a window touched by a verified mark is not exported (summary ``review_unused_reasons``).
+REVIEW_PARTLY = "partly covered: the verified marks do not cover the whole window (marks off this export's window grid)"
+REVIEW_MIXED = "partly rejected or flagged"
+REVIEW_STALE = "stale: verified before a later change of the clock or of the object's pose"
+REVIEW_NO_LABEL = "no label: label time outside the trajectory"
+#: Piece categories of :func:`_status_pieces`.
+_NONE, _FRESH, _STALE, _OTHER = 0, 1, 2, 3
+
+
+def _status_pieces(reviews, obj: str, is_stale=None) -> tuple[np.ndarray, np.ndarray]:
+    """Piecewise-constant effective review status of one object: breakpoints (sorted int64) and a
+    category per piece ``[b[j], b[j+1])``: none, verified, verified but stale (``is_stale(mark, obj)``),
+    rejected/flagged. The effective mark is the object's own mark, else the all-objects mark (the rule
+    of :func:`core.review.effective_status`; later marks win within a scope)."""
     marks = [m for m in reviews if m.object is None or m.object == obj]
     if not marks:
-        return np.zeros(0, np.int64), []
+        return np.zeros(0, np.int64), np.zeros(0, np.int8)
     b = np.unique(np.array([v for m in marks for v in (m.t0_us, m.t1_us)], np.int64))
-    status = []
-    for j in range(len(b) - 1):
-        s = None
-        for m in reversed(marks):      # most recently added mark wins, as Corrections.review_status
-            if m.t0_us <= b[j] < m.t1_us:
-                s = m.status
-                break
-        status.append(s)
-    return b, status
+    cat = np.zeros(max(len(b) - 1, 0), np.int8)
+    winner = [None] * len(cat)
+    rank = [-1] * len(cat)
+    for order, m in enumerate(marks):          # later in the list wins within a scope
+        own = 1 if m.object is not None else 0
+        j0, j1 = np.searchsorted(b, m.t0_us), np.searchsorted(b, m.t1_us)
+        for j in range(j0, j1):
+            r = own * (len(marks) + 1) + order
+            if r > rank[j]:
+                rank[j], winner[j] = r, m
+    for j, m in enumerate(winner):
+        if m is None:
+            continue
+        if m.status != "verified":
+            cat[j] = _OTHER
+        else:
+            cat[j] = _STALE if (is_stale is not None and is_stale(m, obj)) else _FRESH
+    return b, cat
 
 
-def verified_mask(windows, reviews, objects) -> np.ndarray:
-    """Which windows ``--only-verified`` exports.
+def review_usage(windows, reviews, objects, is_stale=None) -> tuple[np.ndarray, np.ndarray, list]:
+    """Which windows ``--only-verified`` exports, and why windows touched by verified marks are not.
 
-    A window ``[t0, t1)`` is exported iff, for every exported object and at every instant ``t`` in
-    ``[t0, t1)``, the *effective* review status is ``verified``. The effective status at ``t`` is that
-    of the most recently added review mark covering ``t`` that applies to the object (a mark without
-    ``object`` applies to all), exactly :meth:`core.corrections.Corrections.review_status`. So a window
-    must be fully covered by verified marks, and any ``rejected`` (or ``flagged``) mark added later that
-    overlaps it by even 1 µs excludes it; a later ``verified`` mark overrides an earlier rejection.
-    Empty windows (``t1 <= t0``) are never exported.
+    A window ``[t0, t1)`` is exported iff, for every exported object and at every instant of
+    ``[t0, t1)``, the effective review status (:func:`core.review.effective_status`) is ``verified``
+    by a mark that is not stale (``is_stale(mark, obj)``; None: no mark is stale). **Partly covered
+    windows are never exported**: a window must be covered entirely by verified marks, and a
+    rejected or flagged mark over any part of it excludes it. Empty windows (``t1 <= t0``) are never
+    exported.
+
+    Returns
+    -------
+    keep : (N,) bool
+    touched : (N,) bool
+        Windows that a verified mark (fresh or stale) overlaps for some exported object.
+    reasons : list of str or None
+        For each window touched but not kept: :data:`REVIEW_MIXED`, :data:`REVIEW_PARTLY` or
+        :data:`REVIEW_STALE` (the first that applies); None otherwise.
     """
     n = len(windows)
-    out = np.ones(n, bool)
     t0 = np.array([w.t0_us for w in windows], np.int64)
     t1 = np.array([w.t1_us for w in windows], np.int64)
-    out &= t1 > t0
+    nonempty = t1 > t0
+    any_none = np.zeros(n, bool)
+    any_other = np.zeros(n, bool)
+    any_stale = np.zeros(n, bool)
+    touched = np.zeros(n, bool)
+    if not objects:
+        any_none[:] = True
     for obj in objects:
-        b, status = _status_pieces(reviews, obj)
+        b, cat = _status_pieces(reviews, obj, is_stale)
         if len(b) < 2:
-            return np.zeros(n, bool)
-        good = np.array([s == "verified" for s in status], bool)
+            any_none[:] = True
+            continue
         # first / last piece that the window touches: piece j spans [b[j], b[j+1])
-        j0 = np.searchsorted(b, t0, side="right") - 1
-        j1 = np.searchsorted(b, t1 - 1, side="right") - 1
-        inside = (j0 >= 0) & (t1 - 1 < b[-1]) & (t0 >= b[0])
-        bad_prefix = np.concatenate([[0], np.cumsum(~good)])       # number of non-verified pieces before j
-        j0c = np.clip(j0, 0, len(good) - 1)
-        j1c = np.clip(j1, 0, len(good) - 1)
-        n_bad = bad_prefix[j1c + 1] - bad_prefix[j0c]
-        out &= inside & (n_bad == 0)
-    return out
+        j0 = np.clip(np.searchsorted(b, t0, side="right") - 1, 0, len(cat) - 1)
+        j1 = np.clip(np.searchsorted(b, t1 - 1, side="right") - 1, 0, len(cat) - 1)
+        outside = (t0 < b[0]) | (t1 - 1 >= b[-1])
+        counts = {}
+        for c in (_NONE, _FRESH, _STALE, _OTHER):
+            pre = np.concatenate([[0], np.cumsum(cat == c)])
+            counts[c] = pre[j1 + 1] - pre[j0]
+        meets = (t1 > b[0]) & (t0 < b[-1]) & nonempty     # overlaps the span of the breakpoints at all
+        any_none |= outside | (counts[_NONE] > 0)
+        any_other |= meets & (counts[_OTHER] > 0)
+        any_stale |= meets & (counts[_STALE] > 0)
+        touched |= meets & ((counts[_FRESH] > 0) | (counts[_STALE] > 0))
+    keep = nonempty & ~any_none & ~any_other & ~any_stale
+    reasons = [None] * n
+    for i in np.flatnonzero(touched & ~keep):
+        reasons[i] = REVIEW_MIXED if any_other[i] else REVIEW_PARTLY if any_none[i] else REVIEW_STALE
+    return keep, touched, reasons
+
+
+def verified_mask(windows, reviews, objects, is_stale=None) -> np.ndarray:
+    """Which windows ``--only-verified`` exports (the ``keep`` of :func:`review_usage`)."""
+    return review_usage(windows, reviews, objects, is_stale)[0]
+
+
+def scene_staleness(scene):
+    """``is_stale(mark, obj)`` for :func:`review_usage`: the mark was made under another clock or
+    another pose of ``obj`` than ``scene`` has now (:func:`core.review.stale_reasons`)."""
+    from ..review import mark_state, stale_reasons
+
+    now = mark_state(scene)
+    return lambda mark, obj: bool(stale_reasons(scene, mark, obj, now=now))
 
 
 # ------------------------------------------------------------------------------------------- fingerprint
@@ -238,7 +306,7 @@ def _T_list(T) -> list:
 
 
 def export_fingerprint(scene, names, *, fmt, format_options, window_us, window_events, label_at,
-                       only_verified, margin_m) -> dict:
+                       only_verified, margin_m, include_stale=False) -> dict:
     """Everything the exported bytes depend on (JSON-able). Two runs with equal fingerprints write
     identical files, so a rerun may resume; anything else must not be mixed into one folder."""
     m = scene.manifest
@@ -272,6 +340,8 @@ def export_fingerprint(scene, names, *, fmt, format_options, window_us, window_e
         "objects": objects,
         "occluders": occluders,
     }
+    if only_verified and include_stale:
+        doc["include_stale"] = True       # absent otherwise: fingerprints of earlier exports stay valid
     return doc
 
 
@@ -757,7 +827,7 @@ def _chunks(seq: list, size: int) -> list[list]:
 
 def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window_events=None, label_at="center",
                only_verified=False, objects=None, margin_m=0.0, jobs=1, force=False, durable=True,
-               progress: Callable[[float, str], None] | None = None,
+               include_stale=False, progress: Callable[[float, str], None] | None = None,
                cancel: Callable[[], bool] | None = None) -> ExportSummary:
     """Run one export (see :func:`core.export.export_scene` for the parameters)."""
     t_start = time.perf_counter()
@@ -790,8 +860,8 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window
     try:
         return _run_locked(scene, writer, out_dir, windows, names, sel, window_us=window_us,
                            window_events=window_events, label_at=label_at, only_verified=only_verified,
-                           margin_m=margin_m, jobs=jobs, force=force, durable=durable, progress=progress,
-                           cancel=cancel, t_start=t_start)
+                           include_stale=include_stale, margin_m=margin_m, jobs=jobs, force=force, durable=durable,
+                           progress=progress, cancel=cancel, t_start=t_start)
     finally:
         os.close(lock)
 
@@ -813,10 +883,10 @@ def _lock_folder(out_dir: Path) -> int:
 
 
 def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, window_events, label_at, only_verified,
-                margin_m, jobs, force, durable, progress, cancel, t_start) -> ExportSummary:
+                margin_m, jobs, force, durable, progress, cancel, t_start, include_stale=False) -> ExportSummary:
     doc = export_fingerprint(scene, names, fmt=writer.fmt, format_options=writer.options(), window_us=window_us,
                              window_events=window_events, label_at=label_at, only_verified=only_verified,
-                             margin_m=float(margin_m))
+                             margin_m=float(margin_m), include_stale=include_stale)
     sha = fingerprint_sha(doc)
     _prepare_out_dir(out_dir, sha, doc, force)
     clean_temp_files(out_dir)
@@ -827,7 +897,11 @@ def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, windo
                         journal, n_digits, durable)
 
     # selection and poses (one vectorised interpolation for all windows)
-    keep = verified_mask(windows, scene.corrections.reviews, names) if only_verified else np.ones(len(windows), bool)
+    if only_verified:
+        keep, touched, review_reasons = review_usage(windows, scene.corrections.reviews, names,
+                                                     None if include_stale else scene_staleness(scene))
+    else:
+        keep, touched, review_reasons = np.ones(len(windows), bool), np.zeros(len(windows), bool), []
     selected = [w for w, k in zip(windows, keep) if k]
     request = writer.request(float(margin_m))
     pose_ann = Annotator(scene, Request(keypoints=False, masks_visible=False), objects=scene.object_names)
@@ -851,6 +925,8 @@ def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, windo
     summary.unlabeled_windows = unlabeled
     for u in unlabeled:
         summary.unlabeled_reasons[u["reason"]] = summary.unlabeled_reasons.get(u["reason"], 0) + 1
+    if only_verified:
+        _count_review_usage(summary, windows, touched, review_reasons, {u["index"] for u in unlabeled}, include_stale)
 
     try:
         writer.begin(ctx)
@@ -904,6 +980,19 @@ def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, windo
         clean_temp_files(out_dir)
         raise
     return summary
+
+
+def _count_review_usage(summary, windows, touched, reasons, unlabeled_idx, include_stale) -> None:
+    """Count the windows verified marks touch and why those not exported were left out."""
+    summary.include_stale = bool(include_stale)
+    summary.review_marked = int(np.count_nonzero(touched))
+    out: dict = {}
+    for i in np.flatnonzero(touched):
+        why = reasons[i] if reasons[i] is not None else (REVIEW_NO_LABEL if windows[i].index in unlabeled_idx else None)
+        if why is not None:
+            out[why] = out.get(why, 0) + 1
+    summary.review_unused = sum(out.values())
+    summary.review_unused_reasons = out
 
 
 def _run_serial(ctx, spec, tasks, records, summary, report, cancel) -> None:

@@ -1,0 +1,144 @@
+"""Durability of the user's document (issue 11 item 9): the autosave journal cut at every byte
+boundary restores whole or is reported and ignored, never crashes; the corrections save syncs its
+temp file before the rename and the folder after it."""
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from core.corrections import Corrections
+from core.geometry import T_from_rotvec
+from core.session import Session
+
+
+def _edited_session(scene_dir) -> Session:
+    s = Session.open(scene_dir)
+    s.set_offset_correction_us(12_345, mergeable=False)
+    s.history.set(("object", "box"), T_from_rotvec([0.01, 0.02, -0.01], [0.001, -0.002, 0.003]))
+    s.add_review("verified", note="grün ok")       # non-ASCII text in the journal
+    s.step_windows(3)
+    s.add_review("rejected", obj="cylinder")
+    return s
+
+
+def test_journal_cut_at_every_byte_restores_whole_or_is_reported(scene_copy):
+    s = _edited_session(scene_copy)
+    path = s.write_journal()
+    full = path.read_bytes()
+    expected = s.scene.corrections.canonical()
+    reader = Session.open(scene_copy)               # a fresh app session after the crash
+    restored = reported = 0
+    for k in range(len(full) + 1):
+        path.write_bytes(full[:k])
+        j = reader.pending_journal()                 # never raises
+        if j is None:
+            assert reader.journal_problem is not None and str(path) in reader.journal_problem, k
+            assert "ignored" in reader.journal_problem
+            reported += 1
+        else:
+            assert reader.journal_problem is None
+            assert j.canonical() == expected, k      # all or nothing
+            restored += 1
+    assert restored == 1 and reported == len(full)
+    # the whole journal restores exactly, as one undo step
+    reader.restore_journal(reader.pending_journal())
+    assert reader.scene.corrections.canonical() == expected
+    assert len(reader.history) == 1
+    reader.history.undo()
+    assert reader.scene.corrections.is_identity()
+
+
+@pytest.mark.parametrize("payload", [b"\xff\xfe{", b"[1, 2]", b'"text"', b"123", b'{"format": "evpose-corrections/1", "base": 3}',
+                                     b'{"format": "evpose-corrections/1", "reviews": [7]}', b"",
+                                     b'{"format": "evpose-corrections/1", "clock": {"offset_us": 1e300}}'])
+def test_damaged_journals_are_reported_not_raised(scene_copy, payload):
+    s = Session.open(scene_copy)
+    s.journal_path.write_bytes(payload)
+    assert s.pending_journal() is None
+    assert str(s.journal_path) in s.journal_problem
+    assert s.journal_path.exists()                    # kept: it is only removed by a save or a discard
+
+
+def test_restore_merges_with_what_another_program_saved_since(scene_copy):
+    s = _edited_session(scene_copy)                   # unsaved edits ...
+    s.write_journal()                                 # ... autosaved, then the app dies
+    other = Corrections.load(scene_copy / "corrections.json") if (scene_copy / "corrections.json").exists() \
+        else Corrections()
+    other.set(("skew_ppm",), 4.25)                    # meanwhile a CLI saves another field
+    other.set(("offset_us",), 999)                    # ... and one the journal changed too
+    other.save(scene_copy / "corrections.json")
+    s2 = Session.open(scene_copy)
+    j = s2.pending_journal()
+    conflicts = s2.restore_journal(j)
+    doc = s2.scene.corrections
+    assert doc.skew_ppm == 4.25                       # the other program's edit is kept
+    assert doc.offset_us == 12_345                    # the autosaved edit wins where both changed
+    assert [c.field for c in conflicts] == ["clock.offset_us"]
+    assert "box" in doc.object_deltas and len(doc.reviews) == 2
+
+
+# ---------------------------------------------------------------------------- fsync / rename order
+def _record_io(monkeypatch, calls):
+    real_fsync, real_replace, real_rename = os.fsync, os.replace, os.rename
+
+    def fsync(fd):
+        target = os.readlink(f"/proc/self/fd/{fd}")
+        size = os.fstat(fd).st_size
+        calls.append(("fsync", target, size))
+        return real_fsync(fd)
+
+    def replace(a, b, *args, **kw):
+        calls.append(("replace", str(a), str(b)))
+        return real_replace(a, b, *args, **kw)
+
+    def rename(a, b, *args, **kw):
+        calls.append(("rename", str(a), str(b)))
+        return real_rename(a, b, *args, **kw)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.setattr(os, "rename", rename)
+
+
+@pytest.mark.parametrize("through_link", [False, True])
+def test_corrections_save_syncs_temp_then_renames_then_syncs_folder(scene_copy, tmp_path, monkeypatch, through_link):
+    s = _edited_session(scene_copy)
+    target = scene_copy / "corrections.json"
+    if through_link:
+        store = tmp_path / "store"
+        store.mkdir()
+        target = store / "real.json"
+        (scene_copy / "corrections.json").symlink_to(target)
+    calls = []
+    _record_io(monkeypatch, calls)
+    s.save()
+    monkeypatch.undo()
+    final = target.read_bytes()
+    renames = [c for c in calls if c[0] in ("replace", "rename")]
+    assert len(renames) == 1, calls
+    _, tmp, dst = renames[0]
+    assert Path(dst) == target and Path(tmp).parent == target.parent and not Path(tmp).exists()
+    i_ren = calls.index(renames[0])
+    # the temp file was synced, complete, before the rename ...
+    synced_tmp = [i for i, c in enumerate(calls) if c[0] == "fsync" and c[1] == tmp]
+    assert synced_tmp and synced_tmp[-1] < i_ren, calls
+    assert calls[synced_tmp[-1]][2] == len(final)
+    # ... and the folder after it
+    synced_dir = [i for i, c in enumerate(calls) if c[0] == "fsync" and c[1] == str(target.parent)]
+    assert synced_dir and synced_dir[-1] > i_ren, calls
+    assert json.loads(final)["clock"]["offset_us"] == 12_345
+
+
+def test_journal_write_is_atomic_and_synced(scene_copy, monkeypatch):
+    s = _edited_session(scene_copy)
+    calls = []
+    _record_io(monkeypatch, calls)
+    p = s.write_journal()
+    monkeypatch.undo()
+    ren = [c for c in calls if c[0] in ("replace", "rename")]
+    assert len(ren) == 1 and ren[0][2] == str(p)
+    i = calls.index(ren[0])
+    assert any(c[0] == "fsync" and c[1] == ren[0][1] for c in calls[:i])
+    assert any(c[0] == "fsync" and c[1] == str(p.parent) for c in calls[i:])
