@@ -225,6 +225,12 @@ class Annotator:
         T_co, _ = self.scene.T_cam_obj(t, self.names, clock=self.clock, base_cam=(T_bc, valid))
         return T_co, T_bc, valid
 
+    def no_label_reason(self, t_label_us: int) -> str:
+        """Why there is no label at ``t_label_us``: outside the trajectory or in a hole of it."""
+        reasons = getattr(self.scene, "unlabeled_reasons", None)
+        r = reasons(np.array([t_label_us], np.int64), self.clock)[0] if reasons is not None else None
+        return r or "label time outside the trajectory (no extrapolation)"
+
     def annotate(self, window: Window, events: EventArray | None = None, *,
                  pose: tuple[np.ndarray, np.ndarray, bool] | None = None) -> WindowLabels:
         """Labels of one window. ``events`` are needed only for ``segment_events``.
@@ -238,7 +244,7 @@ class Annotator:
         else:
             T_co, T_bc, valid = pose
         if not valid:
-            return WindowLabels(window, False, "label time outside the trajectory (no extrapolation)")
+            return WindowLabels(window, False, self.no_label_reason(window.t_label_us))
         req = self.request
         cam = self.camera
         labels = WindowLabels(window, True, T_base_cam=T_bc)

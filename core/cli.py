@@ -84,6 +84,10 @@ def cmd_synth(args) -> int:
     return 0
 
 
+#: ``info`` counts the windows without a label because of trajectory holes for this tiling (the export default).
+HOLE_WINDOW_US = 10_000
+
+
 def scene_info(scene) -> dict:
     """Summary of a scene (the ``info --json`` document)."""
     ev = scene.events
@@ -96,6 +100,7 @@ def scene_info(scene) -> dict:
         objects.append({"name": spec.name, "class_id": spec.class_id, "mesh": str(spec.mesh),
                         "rotation_residual": spec.rotation_residual,
                         "corrected": spec.name in scene.corrections.object_deltas})
+    holes = scene.trajectory_holes(clock, window_us=HOLE_WINDOW_US)
     # fraction of event time covered by the trajectory under the clock in effect
     if t0 is not None:
         _, valid = traj.at_event_time([t0, t1], clock)
@@ -114,7 +119,11 @@ def scene_info(scene) -> dict:
         "n_poses": len(traj),
         "trajectory": {"frame": scene.manifest.trajectory_frame, "t0_us": traj.t_first_us,
                        "t1_us": traj.t_last_us, "rate_hz": (len(traj) - 1) / max((traj.t_last_us - traj.t_first_us) * 1e-6, 1e-9),
-                       "notes": traj.notes, "covers_first_last_event": coverage},
+                       "notes": traj.notes, "covers_first_last_event": coverage,
+                       "max_gap_us": traj.max_gap_us,
+                       "max_gap_source": "scene.toml" if scene.manifest.trajectory_max_gap_us is not None else "default",
+                       "holes": holes, "hole_window_us": HOLE_WINDOW_US,
+                       "windows_in_holes": sum(h["n_windows"] for h in holes)},
         "objects": [o["name"] for o in objects],
         "object_details": objects,
         "clock": {"offset_us": clock.offset_us, "skew_ppm": clock.skew_ppm, "t_ref_us": clock.t_ref_us,
@@ -144,6 +153,18 @@ def cmd_info(args) -> int:
         f"(prior {c['prior_offset_us']} us, {c['prior_skew_ppm']} ppm)",
         f"objects    {', '.join(info['objects']) or '(none)'}",
     ]
+    tr = info["trajectory"]
+    if tr["holes"]:
+        lines.append(f"holes      {len(tr['holes'])} in the trajectory (gaps over max_gap_us = {tr['max_gap_us']}, "
+                     f"{tr['max_gap_source']}): {tr['windows_in_holes']} windows of {HOLE_WINDOW_US // 1000} ms "
+                     "get no label")
+        for h in tr["holes"][:20]:
+            lines.append(f"           [{h['t0_pose_us']}, {h['t1_pose_us']}] us pose clock = [{h['t0_us']}, {h['t1_us']}] "
+                         f"us event clock: {h['gap_ms']:g} ms without a pose, {h['n_windows']} windows")
+        if len(tr["holes"]) > 20:
+            lines.append(f"           ... and {len(tr['holes']) - 20} more (see --json)")
+    else:
+        lines.append(f"holes      none (max_gap_us = {tr['max_gap_us']}, {tr['max_gap_source']})")
     lines += [f"warning    {w}" for w in info["warnings"]]
     _emit(args, info, "\n".join(lines))
     return 0

@@ -20,8 +20,9 @@ from .camera import CameraError, CameraModel
 from .corrections import CORRECTIONS_FILENAME, Corrections
 from .fileio import atomic_write_text
 from .geometry import ROTATION_TOLERANCE, GeometryError, inv_T, validate_T
+from .input_files import MAX_MANIFEST_BYTES, InputFileError, check_regular, open_regular
 from .objects import ObjectModel, ObjectModelError, raster_friendly
-from .trajectory import ClockModel, Trajectory, TrajectoryError
+from .trajectory import MAX_ABS_TIME_US, ClockModel, Trajectory, TrajectoryError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -35,7 +36,7 @@ _KNOWN = {
     "": {"format", "name", "camera", "events", "trajectory", "clock", "objects"},
     "camera": {"width", "height", "K", "dist"},
     "events": {"path"},
-    "trajectory": {"path", "frame", "hand_eye"},
+    "trajectory": {"path", "frame", "hand_eye", "max_gap_us"},
     "clock": {"offset_us", "skew_ppm"},
     "objects": {"name", "mesh", "mesh_scale", "T_base_obj", "class_id", "symmetric", "repair_rotation"},
 }
@@ -80,6 +81,7 @@ class SceneManifest:
     clock_skew_ppm: float = 0.0
     objects: list[ObjectSpec] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    trajectory_max_gap_us: int | None = None  # None: derived from the sampling interval (default_max_gap_us)
 
     @property
     def root(self) -> Path:
@@ -102,6 +104,8 @@ class SceneManifest:
         traj = {"path": rel(self.trajectory_path), "frame": self.trajectory_frame}
         if self.hand_eye is not None:
             traj["hand_eye"] = np.asarray(self.hand_eye).tolist()
+        if self.trajectory_max_gap_us is not None:
+            traj["max_gap_us"] = int(self.trajectory_max_gap_us)
         objs = []
         for o in self.objects:
             d = {"name": o.name, "mesh": rel(o.mesh), "mesh_scale": float(o.mesh_scale),
@@ -242,6 +246,11 @@ def load_manifest(path, *, check_files: bool = True) -> SceneManifest:
         hand_eye, _ = _matrix(tr_t["hand_eye"], path, "trajectory.hand_eye")
     elif frame == "tcp":
         raise SceneError(path, "trajectory.hand_eye", "required when trajectory.frame = \"tcp\" (T_tcp_cam, 4x4)")
+    max_gap_us = None
+    if "max_gap_us" in tr_t:
+        max_gap_us = _number(tr_t, "max_gap_us", path, "trajectory.max_gap_us", integer=True, positive=True)
+        if max_gap_us > MAX_ABS_TIME_US:
+            raise SceneError(path, "trajectory.max_gap_us", f"{max_gap_us} is out of range (at most 2**53 us)")
 
     clk = data.get("clock", {})
     if not isinstance(clk, dict):
@@ -281,7 +290,7 @@ def load_manifest(path, *, check_files: bool = True) -> SceneManifest:
                                   np.asarray(o["T_base_obj"], dtype=np.float64)))
 
     return SceneManifest(path, name, camera, events_path, trajectory_path, frame, hand_eye,
-                         offset_us, skew_ppm, objects, warnings)
+                         offset_us, skew_ppm, objects, warnings, max_gap_us)
 
 
 # ---------------------------------------------------------------------- scene
@@ -338,10 +347,48 @@ class Scene:
 
     @cached_property
     def trajectory(self) -> Trajectory:
+        """The trajectory file, with holes where samples are more than ``max_gap_us`` apart
+        (``[trajectory] max_gap_us``, default :func:`core.trajectory.default_max_gap_us`)."""
+        mg = self.manifest.trajectory_max_gap_us
         try:
-            return Trajectory.load_csv(self.manifest.trajectory_path)
+            return Trajectory.load_csv(self.manifest.trajectory_path, max_gap_us="auto" if mg is None else mg)
         except TrajectoryError as exc:
             raise SceneError(self.manifest.path, "trajectory.path", str(exc)) from None
+
+    def unlabeled_reasons(self, t_event_us, clock: ClockModel | None = None) -> list[str | None]:
+        """Why each event time gets no label (None where it gets one): before or after the
+        trajectory, or inside a hole of it (the same test :meth:`T_base_cam` applies)."""
+        return self.trajectory.reasons_at_event_time(np.atleast_1d(t_event_us), clock or self.clock)
+
+    def trajectory_holes(self, clock: ClockModel | None = None, window_us: int = 10_000) -> list[dict]:
+        """The trajectory's holes and what they cost.
+
+        Returns one dict per hole: ``t0_pose_us``/``t1_pose_us`` (the samples around the hole, pose
+        clock), ``t0_us``/``t1_us`` (the same on the event clock under ``clock``), ``gap_ms``, and
+        ``n_windows``: how many windows of the recording's tiling with ``window_us`` windows
+        (labels at the centre, :func:`core.annotate.time_windows`) have their label time in the
+        hole, so get no label.
+        """
+        traj = self.trajectory
+        clock = clock or self.clock
+        ev = self.events
+        out = []
+        W = int(window_us)
+        n_win = 0 if ev.t_first_us is None else -(-(ev.t_last_us + 1 - ev.t_first_us) // W)
+        for k, (a, b) in zip(traj.hole_index, traj.holes):
+            ea, eb = (int(v) for v in clock.event_time(np.array([a, b], np.int64)))
+            n = 0
+            if n_win:
+                first = ev.t_first_us + W // 2            # label time of window 0
+                j0 = min(max((ea - 2 - first) // W, 0), n_win)
+                j1 = min(max((eb + 2 - first) // W + 1, 0), n_win)
+                if j1 > j0:
+                    labels = first + W * np.arange(j0, j1, dtype=np.int64)
+                    code, seg = traj.locate_rel(clock.pose_time_rel(labels, traj.t_first_us))
+                    n = int(np.count_nonzero((code == 3) & (seg == k)))
+            out.append({"t0_pose_us": a, "t1_pose_us": b, "t0_us": ea, "t1_us": eb, "gap_ms": (b - a) / 1000.0,
+                        "n_windows": n})
+        return out
 
     @cached_property
     def _models(self) -> dict[str, ObjectModel]:

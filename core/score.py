@@ -232,6 +232,8 @@ class ScoreTable:
     reasons: dict = field(default_factory=dict)
     runtime_s: float = 0.0
     params: ScoreParams | None = None
+    #: window index -> why it has no pose (outside the trajectory or in a hole): no score for any object
+    unlabeled: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.t_label_us)
@@ -251,14 +253,23 @@ class ScoreTable:
                             "objects": {n: {"score": val(self.score[n], i), "distance_px": val(self.distance_px[n], i),
                                             "inside_fraction": val(self.inside_fraction[n], i),
                                             "n_events_near": int(self.n_events_near[n][i]),
-                                            "valid": bool(self.valid[n][i])} for n in self.objects}})
+                                            "valid": bool(self.valid[n][i]),
+                                            "reason": self.reasons.get(n, {}).get(i)} for n in self.objects}})
         summary = {}
         for n in self.objects:
             w = worst_window(self, n)
             summary[n] = {"mean_score": self.mean_score(n), "n_valid": int(self.valid[n].sum()),
                           "worst_window": w, "worst_t_label_us": None if w is None else int(self.t_label_us[w])}
         return {"n_windows": len(self), "objects": list(self.objects), "runtime_s": float(self.runtime_s),
-                "summary": summary, "windows": windows}
+                "summary": summary, "windows": windows, "unlabeled": len(self.unlabeled),
+                "unlabeled_reasons": self.unlabeled_reasons()}
+
+    def unlabeled_reasons(self) -> dict:
+        """reason -> number of windows without a pose (so without any score)."""
+        out: dict = {}
+        for r in self.unlabeled.values():
+            out[r] = out.get(r, 0) + 1
+        return out
 
 
 def worst_window(table: ScoreTable, name: str) -> int | None:
@@ -307,8 +318,14 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
     n_near = np.zeros((K, N), np.int64)
     valid = np.zeros((K, N), bool)
     reasons = {n: {} for n in names}
+    no_pose = []
     if N and K:
         T_bc, pose_ok = scene.T_base_cam(t_label, clock=clock)
+        no_pose = [None] * N                     # outside the trajectory or in a hole: no score
+        if not pose_ok.all():
+            bad = np.flatnonzero(~pose_ok)
+            for i, r in zip(bad, scene.unlabeled_reasons(t_label[bad], clock)):
+                no_pose[i] = r
         T_cb = inv_T(T_bc)
         T_bo = np.stack([np.asarray(poses[n]) if poses and n in poses else scene.T_base_obj(n) for n in names])
         models = [scene.raster_model(n) for n in names]
@@ -317,8 +334,9 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
             if cancel is not None and cancel():
                 raise Cancelled("scoring cancelled")
             if not pose_ok[i]:
+                why = no_pose[i] or "label time outside the trajectory"
                 for n in names:
-                    reasons[n][i] = "label time outside the trajectory"
+                    reasons[n][i] = why
                 continue
             T_co = [T_cb[i] @ T_bo[k] for k in range(K)]
             res = raster.render_objects(models, T_co)
@@ -345,4 +363,5 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
                       {n: masked(data["inside"], k) for k, n in enumerate(names)},
                       {n: n_near[k] for k, n in enumerate(names)},
                       {n: valid[k].copy() for k, n in enumerate(names)},
-                      reasons, time.perf_counter() - t_start, p)
+                      reasons, time.perf_counter() - t_start, p,
+                      {i: r for i, r in enumerate(no_pose) if r is not None})

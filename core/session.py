@@ -615,7 +615,9 @@ class TimelineData:
     rate_hz: np.ndarray      # events per second
     speed_mps: np.ndarray    # camera linear speed at the pose time of each bin (current clock)
     angular_dps: np.ndarray  # camera angular speed, degrees per second
-    speed_valid: np.ndarray  # False where the pose time is outside the trajectory
+    speed_valid: np.ndarray  # False where the pose time is outside the trajectory or in a hole
+    #: (H, 2) trajectory holes on the event clock, s since ``t_ref_us`` (current clock): no labels there
+    holes_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 def timeline_data(scene: Scene, bin_us: int = 1000) -> TimelineData:
@@ -626,5 +628,7 @@ def timeline_data(scene: Scene, bin_us: int = 1000) -> TimelineData:
     centres = t_bins + bin_us // 2
     t_pose = scene.clock.pose_time(centres) if len(centres) else centres
     v, w, valid = scene.trajectory.speed(t_pose) if len(centres) else (np.zeros(0),) * 3
+    holes = [((h["t0_us"] - t_ref) * 1e-6, (h["t1_us"] - t_ref) * 1e-6)
+             for h in scene.trajectory_holes(window_us=bin_us)] if scene.trajectory.holes else []
     return TimelineData(t_ref, (centres - t_ref) * 1e-6, counts * (1e6 / bin_us), np.asarray(v),
-                        np.degrees(np.asarray(w)), np.asarray(valid, bool))
+                        np.degrees(np.asarray(w)), np.asarray(valid, bool), np.array(holes, np.float64).reshape(-1, 2))

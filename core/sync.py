@@ -118,14 +118,20 @@ class MotionProxy:
     value : (N-1,) float64
         Image speed on each interval, px/s.
     kind : str
+    holes_us : (H, 2) float64
+        Holes of the trajectory (``[a, b]`` relative to ``t0_us``, sorted): no pose there, so no
+        speed; intervals that touch one are not valid in :meth:`mean_over`.
     """
 
     t0_us: int
     knots_us: np.ndarray
     value: np.ndarray
     kind: str = "flow"
+    holes_us: np.ndarray | None = None
 
     def __post_init__(self):
+        self.holes_us = (np.zeros((0, 2)) if self.holes_us is None
+                         else np.asarray(self.holes_us, dtype=np.float64).reshape(-1, 2))
         self.knots_us = np.asarray(self.knots_us, dtype=np.float64)
         self.value = np.nan_to_num(np.asarray(self.value, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
         if len(self.knots_us) >= 2:
@@ -144,13 +150,18 @@ class MotionProxy:
     def mean_over(self, a_rel: np.ndarray, b_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean image speed over pose-time intervals ``[a, b)`` (µs relative to ``t0_us``).
 
-        Returns ``(mean px/s, valid)``; invalid (0) where the interval leaves the trajectory.
+        Returns ``(mean px/s, valid)``; invalid (0) where the interval leaves the trajectory or
+        overlaps one of its holes (the speed there is unknown, not the mean over the gap).
         """
         a = np.asarray(a_rel, dtype=np.float64)
         b = np.asarray(b_rel, dtype=np.float64)
         if len(self.knots_us) < 2:
             return np.zeros(a.shape), np.zeros(a.shape, bool)
         valid = (a >= 0.0) & (b <= self.knots_us[-1]) & (b > a)
+        if len(self.holes_us):
+            j = np.searchsorted(self.holes_us[:, 1], a, side="right")      # first hole ending after a
+            jc = np.minimum(j, len(self.holes_us) - 1)
+            valid &= ~((j < len(self.holes_us)) & (self.holes_us[jc, 0] < b))
         Fa = np.interp(a, self.knots_us, self._F)
         Fb = np.interp(b, self.knots_us, self._F)
         out = np.where(valid, (Fb - Fa) / np.where(valid, b - a, 1.0), 0.0)
@@ -202,6 +213,7 @@ def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, 
     t = trajectory.t_us
     knots = (t - t[0]).astype(np.float64)
     n = len(t)
+    holes = np.array([(a - t[0], b - t[0]) for a, b in trajectory.holes], np.float64).reshape(-1, 2)
     if n < 2:
         return MotionProxy(int(t[0]), knots, np.zeros(0), kind)
     dt_s = np.diff(knots) * 1e-6
@@ -225,7 +237,9 @@ def motion_proxy(trajectory: Trajectory, fx: float, fy: float | None = None, *, 
             du = fx * ((x * vz - vx) + x * y * wx - (1 + x * x) * wy + y * wz)
             dv = fy * ((y * vz - vy) + (1 + y * y) * wx - x * y * wy - x * wz)
             val[s] = np.hypot(du, dv).mean(axis=1)
-    return _smooth_proxy(int(t[0]), knots, val, kind) if smooth else MotionProxy(int(t[0]), knots, val, kind)
+    out = _smooth_proxy(int(t[0]), knots, val, kind) if smooth else MotionProxy(int(t[0]), knots, val, kind)
+    out.holes_us = holes
+    return out
 
 
 def _smooth_proxy(t0_us: int, knots_us: np.ndarray, value: np.ndarray, kind: str,
@@ -263,7 +277,7 @@ def _camera_trajectory(scene) -> Trajectory:
     if he is not None:
         T = T @ he
     T = T @ dT
-    return Trajectory.from_T(traj.t_us, T, source=traj.source)
+    return Trajectory.from_T(traj.t_us, T, source=traj.source, max_gap_us=traj.max_gap_us)
 
 
 def scene_motion_proxy(scene, kind: str = "flow", grid=(8, 6)) -> MotionProxy:
@@ -1186,15 +1200,23 @@ def minima_baseline(starts_us, counts, bin_us: int, trajectory: Trajectory, prio
         return _unreliable("the trajectory has fewer than two poses", t_start, prior, method)
     v, w, _ = trajectory.speed()
     sp = v if v.max() > 1e-6 else w
-    t_seg = trajectory.t_us[:-1] + np.diff(trajectory.t_us) // 2
-    # resample the piecewise constant speed on a bin grid and smooth like the rate
-    grid = np.arange(trajectory.t_first_us, trajectory.t_last_us, bin_us, dtype=np.int64)
+    # resample the piecewise constant speed on a bin grid (over the events' pose times and the search
+    # range only: a trajectory may span days) and smooth like the rate
+    span = prior.pose_time(np.array([starts[0], starts[-1] + bin_us], np.int64))
+    g0 = max(trajectory.t_first_us, int(span[0] - range_us))
+    g1 = min(trajectory.t_last_us, int(span[1] + range_us))
+    grid = np.arange(g0, max(g0, g1), bin_us, dtype=np.int64)
+    if len(grid) < 3:
+        return _unreliable("the trajectory does not overlap the events within the search range", t_start,
+                           prior, method)
     sp_g = sp[np.clip(np.searchsorted(trajectory.t_us, grid, side="right") - 1, 0, len(sp) - 1)]
+    # no pose in a hole: its mean speed over the gap would make a false stop, so no minimum near one
+    in_hole = ~trajectory.speed(grid)[2]
     if sp_g.max() <= 1e-9:
         return _unreliable("static camera: the robot does not move", t_start, prior, method)
     sp_g = ndimage.uniform_filter1d(sp_g, n_win, mode="nearest")
-    p_min = grid[minima(sp_g, dist)]
-    del t_seg
+    near_hole = ndimage.binary_dilation(in_hole, iterations=n_win) if in_hole.any() else in_hole
+    p_min = grid[[i for i in minima(sp_g, dist) if not near_hole[i]]]
     if len(e_min) == 0 or len(p_min) == 0:
         return _unreliable("no minima to match", t_start, prior, method)
     diffs = []

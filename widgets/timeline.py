@@ -34,6 +34,7 @@ SPEED_COLOR = (31, 100, 200)
 ANGULAR_COLOR = (150, 60, 170)
 CURSOR_COLOR = (0, 0, 0)
 SPAN_COLOR = (60, 120, 220)
+HOLE_COLOR = (120, 120, 120, 70)  # trajectory holes: no pose, so no label (grey, hatched)
 PLAY_SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0)
 SCRUB_INTERVAL_MS = 33           # at most ~30 session.set_time calls per second while dragging
 PLAY_INTERVAL_MS = 30            # playback tick
@@ -391,6 +392,7 @@ class Timeline(QtWidgets.QWidget):
         self.rate_item.setData(data.t_s, np.asarray(data.rate_hz, np.float64))
         self.speed_item.setData(data.t_s, np.where(valid, data.speed_mps, np.nan))
         self.angular_item.setData(data.t_s, np.where(valid, data.angular_dps, np.nan))
+        self._shade_holes(getattr(data, "holes_s", np.zeros((0, 2))))
         if first:
             self.fit()
         else:
@@ -398,6 +400,20 @@ class Timeline(QtWidgets.QWidget):
             pad = 0.01 * (x1 - x0)
             self.vb.setLimits(xMin=x0 - pad, xMax=x1 + pad)
         self._sync_views()
+
+    def _shade_holes(self, holes_s) -> None:
+        """Grey hatched bands over the trajectory's holes (no pose there, so no label)."""
+        for item in getattr(self, "hole_items", []):
+            self.plot.removeItem(item)
+        self.hole_items = []
+        brush = QtGui.QBrush(QtGui.QColor(*HOLE_COLOR), QtCore.Qt.BDiagPattern)
+        for a, b in np.asarray(holes_s, np.float64).reshape(-1, 2):
+            item = pg.LinearRegionItem(values=(float(a), float(b)), movable=False, brush=brush,
+                                       pen=pg.mkPen(HOLE_COLOR[:3]))
+            item.setZValue(-30)
+            item.setToolTip(f"trajectory hole: no pose from {a:.3f} s to {b:.3f} s, so no label")
+            self.plot.addItem(item, ignoreBounds=True)
+            self.hole_items.append(item)
 
     def _clock_key(self):
         scene = self.session.scene

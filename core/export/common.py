@@ -10,8 +10,9 @@ Vocabulary
 *selected*
     Windows that pass ``only_verified`` (all windows when it is off).
 *unlabeled*
-    Selected windows whose label time falls outside the trajectory under the clock in effect: no labels
-    (no extrapolation); listed with the reason in the summary and the manifest.
+    Selected windows whose label time falls outside the trajectory under the clock in effect, or inside a
+    hole of it (samples more than ``max_gap_us`` apart): no labels (no extrapolation, no bridging of holes);
+    listed with the reason in the summary and the manifest.
 *complete*
     A window whose outputs a previous run with the same configuration wrote entirely. For the file
     formats a window is complete when the parent recorded it in the journal ``.evpose/journal.jsonl``
@@ -65,6 +66,7 @@ from ..annotate import Annotator, Request, Window, count_windows, time_windows
 from ..corrections import Corrections
 from ..events import Cancelled, EventArray
 from ..fileio import fsync_dir
+from ..trajectory import REASON_AFTER, REASON_BEFORE
 
 __all__ = [
     "EXPORT_LAYOUT_VERSION", "FORMATS", "STATE_DIR", "MANIFEST_NAME", "ExportError", "ExportSummary",
@@ -79,8 +81,8 @@ CONFIG_NAME = "config.json"
 JOURNAL_NAME = "journal.jsonl"
 MANIFEST_NAME = "export_manifest.json"
 README_NAME = "README.txt"
-UNLABELED_BEFORE = "label time outside the trajectory: pose time before its first pose (no extrapolation)"
-UNLABELED_AFTER = "label time outside the trajectory: pose time after its last pose (no extrapolation)"
+UNLABELED_BEFORE = REASON_BEFORE     # "label time outside the trajectory: pose time before its first pose ..."
+UNLABELED_AFTER = REASON_AFTER       # holes: core.trajectory.hole_reason, "label time in a trajectory hole [a, b] us ..."
 UNLABELED_OTHER = "label time outside the trajectory (no extrapolation)"
 #: Stages of the per-window time split (seconds summed over windows, all processes).
 STAGES = ("events", "annotate", "images", "mat", "write")
@@ -335,7 +337,10 @@ def export_fingerprint(scene, names, *, fmt, format_options, window_us, window_e
                    "n_events": int(ev.n_events), "t_first_us": ev.t_first_us, "t_last_us": ev.t_last_us},
         "trajectory": {**_file_digest(m.trajectory_path), "frame": m.trajectory_frame,
                        "hand_eye": None if m.hand_eye is None else _T_list(m.hand_eye),
-                       "hand_eye_delta": _T_list(scene.corrections.hand_eye_delta)},
+                       "hand_eye_delta": _T_list(scene.corrections.hand_eye_delta),
+                       # an explicit max gap changes the holes; the default follows from the file digest
+                       **({} if getattr(m, "trajectory_max_gap_us", None) is None
+                          else {"max_gap_us": int(m.trajectory_max_gap_us)})},
         "clock": {"offset_us": int(clock.offset_us), "skew_ppm": float(clock.skew_ppm), "t_ref_us": int(clock.t_ref_us)},
         "objects": objects,
         "occluders": occluders,
@@ -810,15 +815,11 @@ def _describe_difference(old: dict, new: dict, prefix: str = "") -> str:
 
 
 def _unlabeled_reason(scene, t_label_us: int) -> str:
-    try:
-        tp = int(scene.clock.pose_time(np.array([t_label_us]))[0])
-        if tp < scene.trajectory.t_first_us:
-            return UNLABELED_BEFORE
-        if tp > scene.trajectory.t_last_us:
-            return UNLABELED_AFTER
-    except Exception:  # pragma: no cover
-        pass
-    return UNLABELED_OTHER
+    """Why a window has no label: its label time maps before or after the trajectory, or into a hole
+    of it (``in a trajectory hole [a, b] us``; see :meth:`core.scene.Scene.unlabeled_reasons`)."""
+    reasons = getattr(scene, "unlabeled_reasons", None)
+    r = reasons(np.array([t_label_us], np.int64))[0] if reasons is not None else None
+    return r or UNLABELED_OTHER
 
 
 def _chunks(seq: list, size: int) -> list[list]:

@@ -119,7 +119,7 @@ def test_empty_zero_length_and_outside_windows(tiny):
     tab = score.score_windows(scene, wins, poses=truth)
     for n in scene.object_names:
         assert tab.valid[n][:3].tolist() == [False, False, False]
-        assert tab.reasons[n][2] == "label time outside the trajectory"
+        assert tab.reasons[n][2].startswith("label time outside the trajectory: pose time after its last pose")
         assert "events" in tab.reasons[n][0]
         assert tab.n_events_near[n][:3].tolist() == [0, 0, 0]
     assert any(tab.valid[n][3] for n in scene.object_names)
