@@ -207,6 +207,8 @@ def cmd_score(args) -> int:
         ms = "n/a" if s["mean_score"] is None else f"{s['mean_score']:.3f}"
         worst = "none" if s["worst_window"] is None else f"window {s['worst_window']} (t {s['worst_t_label_us']} us)"
         lines.append(f"{n}: mean score {ms} over {s['n_valid']} valid windows; worst {worst}")
+    for reason, k in data["unlabeled_reasons"].items():
+        lines.append(f"no score (no pose) in {k} window(s): {reason}")
     _emit(args, data, "\n".join(lines))
     return 0
 
