@@ -6,8 +6,11 @@ Usage::
 
 Generates once (cached in bench/.data/) DSEC-like files (uint32 t + t_offset, Blosc-LZ4, ms_to_idx) at about
 1 M events/s with bursty rate, 640x480 moving-edge x/y and polarity, plus copies without ms_to_idx. Prints one
-table: (a) open time, (b) 10 ms window fetch (mean / p95) and the ratio to the baseline, (c) peak RSS of each
-method in its own process (ru_maxrss) for both file sizes. Times are wall clock with a warm OS page cache.
+table: (a) open time -- the first open of a file validates every event in one chunked pass (sorted t, pixels on
+the sensor, polarity 0/1) and caches the result with the index, later opens read the cache --, (b) 10 ms window
+fetch (mean / p95) and the ratio to the baseline, (c) peak RSS of each method in its own process (ru_maxrss) for
+both file sizes. Times are wall clock with a warm OS page cache. The index cache of the children lives in
+bench/.data/cache (XDG_CACHE_HOME), never beside the files.
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ def _heavy():
     """Import the numerical stack (children only)."""
     global np, h5py, EventArray, EventStore, write_events_h5, DEFAULT_CHUNK_EVENTS
     sys.path.insert(0, str(ROOT))
+    os.environ["XDG_CACHE_HOME"] = str(DATA / "cache")
     import h5py
     import hdf5plugin  # noqa: F401
     import numpy as np
@@ -129,17 +133,22 @@ def stage_time(n_events, n_windows):
     with_idx, no_idx = ensure_files(n_events)
     r = {"n": n_events, "size_mb": with_idx.stat().st_size / 1e6, "chunk": DEFAULT_CHUNK_EVENTS}
 
-    def open_close(path):
-        dt, s = timed(EventStore, path)
+    def open_close(path, first=False):
+        if first:                                 # forget the cached index and validation result
+            with EventStore(path, sensor_size=(WIDTH, HEIGHT)) as s:
+                s._cache_file().unlink(missing_ok=True)
+        dt, s = timed(lambda: EventStore(path, sensor_size=(WIDTH, HEIGHT)))
         s.close()
         return dt
-    r["open_index"] = float(np.median([open_close(with_idx) for _ in range(5)]))
-    cache, builds = Path(f"{no_idx}.msidx.npz"), []
-    for _ in range(3):
-        cache.unlink(missing_ok=True)
-        builds.append(open_close(no_idx))
-    r["open_build"] = float(np.median(builds))
+    r["open_index"] = float(np.median([open_close(with_idx, first=True) for _ in range(3)]))
+    r["open_build"] = float(np.median([open_close(no_idx, first=True) for _ in range(3)]))
     r["open_cached"] = float(np.median([open_close(no_idx) for _ in range(5)]))
+    r["open_index_cached"] = float(np.median([open_close(with_idx) for _ in range(5)]))
+    import core.events as ce
+    with h5py.File(with_idx, "r") as f:          # the two halves of the first-open pass, alone
+        ds = {k: f[f"events/{k}"] for k in "xyp"}
+        r["scan_t"] = timed(ce._scan_index, with_idx, f["events/t"], 0)[0]
+        r["scan_xyp"] = timed(ce._scan_values, with_idx, ds)[0]
 
     with EventStore(with_idx) as s:             # a fresh store: cold HDF5 chunk cache
         r["duration_s"] = (s.t_last_us - s.t_first_us) * 1e-6
@@ -204,9 +213,12 @@ def report(cols, n_windows):
         row("file size, duration, mean rate", lambda r: f"{r['size_mb']:.0f} MB {r['duration_s']:.1f} s "
             f"{r['n'] / r['duration_s'] / 1e6:.2f} M/s"),
         "(a) open, median",
-        row("  EventStore, ms_to_idx in the file", lambda r: ms(r["open_index"])),
-        row("  EventStore, no index: build + cache it", lambda r: ms(r["open_build"])),
-        row("  EventStore, no index: cached .msidx.npz", lambda r: ms(r["open_cached"])),
+        row("  EventStore first open, ms_to_idx in the file", lambda r: ms(r["open_index"])),
+        row("  EventStore first open, no index: build it", lambda r: ms(r["open_build"])),
+        row("    of which: t pass (order, wraps, index)", lambda r: ms(r["scan_t"])),
+        row("    of which: x/y/p pass (pixels, polarity)", lambda r: ms(r["scan_xyp"])),
+        row("  EventStore later opens (cached), file index", lambda r: ms(r["open_index_cached"])),
+        row("  EventStore later opens (cached), no index", lambda r: ms(r["open_cached"])),
         row("  baseline: load full arrays with h5py", lambda r: ms(r["naive_load"])),
         row("  ratio EventStore / baseline", lambda r: f"{r['ratio_open']:.5f} x"),
         row(f"(b) 10 ms window, {n_windows} random windows", lambda r: f"{'mean':>13}{'p95':>13}"),
@@ -225,9 +237,12 @@ def report(cols, n_windows):
     ]
     grow_store, grow_naive = big["rss_store"] - small["rss_store"], big["rss_naive"] - small["rss_naive"]
     win = big["store_win"]["mean"]
+    first = max(big["open_index"], big["open_build"])
     targets = [("window fetch mean < 1 ms", win < 1e-3, f"{win * 1e3:.3f} ms"),
-               ("open < 1 s, index in the file", big["open_index"] < 1, f"{big['open_index'] * 1e3:.1f} ms"),
-               ("open < 1 s, index built", big["open_build"] < 1, f"{big['open_build'] * 1e3:.1f} ms"),
+               ("first open (validating pass) < loading the arrays (baseline)", first < big["naive_load"],
+                f"{first:.2f} s vs {big['naive_load']:.2f} s"),
+               ("later opens < 50 ms (cached index and validation)", big["open_cached"] < 0.05,
+                f"{big['open_cached'] * 1e3:.1f} ms"),
                (f"peak RSS independent of file size ({small['n'] / 1e6:.0f} M -> {big['n'] / 1e6:.0f} M events)",
                 abs(grow_store) < 0.1 * big["rss_store"],
                 f"EventStore {grow_store:+.0f} MB, baseline {grow_naive:+.0f} MB")]

@@ -340,10 +340,12 @@ class Scene:
 
     @cached_property
     def events(self):
-        """The scene's :class:`~core.events.EventStore` (opened read-only on first use)."""
+        """The scene's :class:`~core.events.EventStore` (opened read-only on first use; events outside
+        the camera's ``width`` x ``height`` are refused, see the store's validation)."""
         from .events import EventStore
 
-        return EventStore(self.manifest.events_path)
+        cam = self.manifest.camera
+        return EventStore(self.manifest.events_path, sensor_size=(cam.width, cam.height))
 
     @cached_property
     def trajectory(self) -> Trajectory:

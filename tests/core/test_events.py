@@ -18,6 +18,18 @@ from core.events import (Cancelled, EventArray, EventFileError, EventStore, Even
 
 
 # ----------------------------------------------------------------------------------------------- helpers
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path_factory, monkeypatch):
+    """Each test caches indices in its own XDG cache dir (never the user's, never beside the file)."""
+    xdg = tmp_path_factory.mktemp("xdg-cache")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(xdg))
+    return xdg / "evpose" / "msidx"
+
+
+def cache_file(path) -> Path:
+    return ce.default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"
+
+
 def make_events(t, seed=0):
     t = np.asarray(t, np.int64)
     rng = np.random.default_rng(seed)
@@ -312,7 +324,7 @@ def counting_scan(monkeypatch):
     return calls
 
 
-def test_index_built_cached_beside_and_reused(tmp_path, monkeypatch):
+def test_index_built_cached_in_the_cache_dir_and_reused(tmp_path, monkeypatch):
     ev = make_events(dup_times(start=2_500_300))
     path = write_raw(tmp_path / "noidx.h5", ev)
     calls = counting_scan(monkeypatch)
@@ -320,8 +332,8 @@ def test_index_built_cached_beside_and_reused(tmp_path, monkeypatch):
     with EventStore(path) as s:
         assert s.ms_index_t0_us == base                  # the ms holding the first event
         np.testing.assert_array_equal(s.ms_to_idx, oracle_ms_index(ev.t - base))
-    cache = Path(f"{path}.msidx.npz")
-    assert cache.exists() and len(calls) == 1
+    assert cache_file(path).exists() and len(calls) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["noidx.h5"]        # nothing beside the file
     with EventStore(path) as s:
         np.testing.assert_array_equal(s.ms_to_idx, oracle_ms_index(ev.t - base))
         assert_same(s.window(0, 2**60), ev)
@@ -338,7 +350,7 @@ def test_stale_or_corrupt_cache_is_rebuilt(tmp_path, monkeypatch):
         assert_same(s.window(0, 2**60), ev2)
         np.testing.assert_array_equal(s.ms_to_idx, oracle_ms_index(ev2.t - int(ev2.t[0]) // 1000 * 1000))
     assert len(calls) == 2
-    Path(f"{path}.msidx.npz").write_bytes(b"not a zip file")
+    cache_file(path).write_bytes(b"not a zip file")
     with EventStore(path) as s:
         assert_same(s.window(0, 2**60), ev2)
     assert len(calls) == 3
@@ -386,7 +398,7 @@ def test_input_file_untouched_and_opened_read_only(tmp_path):
         list(s.iter_chunks(1000))
         s.window_by_count(int(ev.t[100]), 10)
     assert file_state(path) == before
-    assert Path(f"{path}.msidx.npz").exists()
+    assert cache_file(path).exists() and not Path(f"{path}.msidx.npz").exists()
 
 
 def test_file_index_inconsistent_is_ignored_and_short_one_completed(tmp_path):
@@ -452,7 +464,7 @@ def test_unsorted_times_raise_naming_file_and_field(tmp_path, monkeypatch, scan_
     with pytest.raises(EventFileError, match=r"events/t: not sorted at index 40 ") as e:
         EventStore(path)
     assert str(path) in str(e.value) and e.value.field == "events/t"
-    assert not Path(f"{path}.msidx.npz").exists()
+    assert not cache_file(path).exists()
 
 
 @pytest.mark.parametrize("case, field", [
