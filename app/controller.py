@@ -1,14 +1,25 @@
 """User-facing flows: dialogs first, then core calls (DESIGN section 2: dialogs live here, never
 in commands). Errors are shown in dialogs naming the file and the field; nothing crashes with a
-traceback only."""
+traceback only.
+
+Another program saving ``corrections.json`` while the scene is open (an ``evpose ... --apply``, a
+second app): with no unsaved edits the app reloads silently and says so in the status bar; with
+unsaved edits it offers *Merge* (take the other program's edits under ours; a real conflict names
+the field and both values and offers keeping ours or theirs), *Reload* (discard ours) or *Later*
+(the next save merges). The change taken over is one labelled undo step (see
+:mod:`core.session`). Save goes through the same revision check.
+"""
 from __future__ import annotations
 
 import datetime
+import warnings
 from pathlib import Path
 
 from PySide6 import QtCore, QtWidgets
 
 from core.cli import _input_errors
+from core.corrections import CorrectionsError, CorrectionsWarning
+from core.corrections_merge import CorrectionsConflict
 from core.session import Session
 
 from .workers import Job, progress_dialog
@@ -37,6 +48,9 @@ class ExportDialog(QtWidgets.QDialog):
         self.label_at.addItem("window centre", "center")
         self.label_at.addItem("window end (E-POSE timing)", "end")
         self.only_verified = QtWidgets.QCheckBox("only windows marked verified")
+        self.include_stale = QtWidgets.QCheckBox("also verified marks made before a later clock or pose change (stale)")
+        self.include_stale.setEnabled(False)
+        self.only_verified.toggled.connect(self.include_stale.setEnabled)
         self.jobs = QtWidgets.QSpinBox(minimum=1, maximum=max(QtCore.QThread.idealThreadCount(), 1), value=1)
         form.addRow("format", self.fmt)
         form.addRow("output folder", row)
@@ -44,6 +58,7 @@ class ExportDialog(QtWidgets.QDialog):
         form.addRow("or events per window", self.window_events)
         form.addRow("label time", self.label_at)
         form.addRow("", self.only_verified)
+        form.addRow("", self.include_stale)
         form.addRow("processes", self.jobs)
         buttons = QtWidgets.QDialogButtonBox(QtWidgets.QDialogButtonBox.Ok | QtWidgets.QDialogButtonBox.Cancel)
         buttons.accepted.connect(self.accept)
@@ -57,7 +72,8 @@ class ExportDialog(QtWidgets.QDialog):
 
     def options(self) -> dict:
         opts = {"fmt": self.fmt.currentData(), "out_dir": self.out.text().strip(), "label_at": self.label_at.currentData(),
-                "only_verified": self.only_verified.isChecked(), "jobs": self.jobs.value()}
+                "only_verified": self.only_verified.isChecked(), "jobs": self.jobs.value(),
+                "include_stale": self.only_verified.isChecked() and self.include_stale.isChecked()}
         if self.window_events.value() > 0:
             opts["window_events"] = self.window_events.value()
         else:
@@ -72,6 +88,10 @@ class Controller(QtCore.QObject):
         super().__init__(window)
         self.window = window
         self.jobs: list[Job] = []
+        #: Warnings from opening the last scene (e.g. unknown object names in corrections.json).
+        self.open_warnings: list[str] = []
+        self._deferred_signature = None   # an external change the user chose to decide "later"
+        self._asking = False
 
     # ------------------------------------------------------------------ helpers
     def error(self, title: str, message: str, details: str = "") -> None:
@@ -89,6 +109,21 @@ class Controller(QtCore.QObject):
             return self.window.auto_answer.get(title, default)
         return QtWidgets.QMessageBox.question(self.window, title, text, buttons, default)
 
+    def _choose(self, title: str, text: str, options: list[tuple[str, str]], default: str) -> str:
+        """A question with named answers: ``options`` are ``(key, button text)``; returns a key
+        (unattended: ``window.auto_answer[title]`` or ``default``)."""
+        if not getattr(self.window, "modal_dialogs", True):
+            return self.window.auto_answer.get(title, default)
+        box = QtWidgets.QMessageBox(QtWidgets.QMessageBox.Question, title, text, parent=self.window)
+        buttons = {}
+        for key, label in options:
+            role = QtWidgets.QMessageBox.RejectRole if key in ("later", "cancel") else QtWidgets.QMessageBox.AcceptRole
+            buttons[box.addButton(label, role)] = key
+            if key == default:
+                box.setDefaultButton(list(buttons)[-1])
+        box.exec()
+        return buttons.get(box.clickedButton(), "cancel")
+
     # ------------------------------------------------------------------ open / save
     def open_dialog(self) -> None:
         path = QtWidgets.QFileDialog.getExistingDirectory(self.window, "Open scene folder")
@@ -99,7 +134,13 @@ class Controller(QtCore.QObject):
         if not self.maybe_save():
             return None
         try:
-            session = Session.open(path)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", CorrectionsWarning)
+                session = Session.open(path)
+            self.open_warnings = [str(w.message) for w in caught if issubclass(w.category, CorrectionsWarning)]
+            for w in caught:
+                if not issubclass(w.category, CorrectionsWarning):
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             _ = session.scene.events.n_events, session.scene.trajectory  # fail now, not at first draw
         except _input_errors() as exc:
             self.error("Cannot open the scene", str(exc))
@@ -108,12 +149,17 @@ class Controller(QtCore.QObject):
         self.window.set_session(session)
         self.window.settings.add_recent(session.scene.root)
         self.window.refresh_recent_menu()
-        self._offer_journal(session)
+        self._deferred_signature = None
         self.window.statusBar().showMessage(f"opened {session.scene.root}", 5000)
+        self._offer_journal(session)
+        if self.open_warnings:
+            self.window.statusBar().showMessage("warning: " + "; ".join(self.open_warnings), 20_000)
         return session
 
     def _offer_journal(self, session: Session) -> None:
         journal = session.pending_journal()
+        if session.journal_problem:
+            self.window.statusBar().showMessage(session.journal_problem, 15_000)
         if journal is None:
             return
         when = datetime.datetime.fromtimestamp(session.journal_path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
@@ -122,22 +168,104 @@ class Controller(QtCore.QObject):
                            "Restore them? (You can undo the restore.)",
                            QtWidgets.QMessageBox.Yes | QtWidgets.QMessageBox.No, QtWidgets.QMessageBox.Yes)
         if answer == QtWidgets.QMessageBox.Yes:
-            session.restore_journal(journal)
-            self.window.statusBar().showMessage("restored autosaved corrections (Ctrl+Z undoes)", 8000)
+            conflicts = session.restore_journal(journal)
+            extra = ("; kept the autosaved value over the file's for " + ", ".join(c.field for c in conflicts)
+                     if conflicts else "")
+            self.window.statusBar().showMessage(f"restored autosaved corrections (Ctrl+Z undoes){extra}", 10_000)
         else:
             session.discard_journal()
 
-    def save(self) -> bool:
+    def save(self, prefer: str | None = None) -> bool:
+        """Save through the revision check; a conflict with another program's save asks which
+        value to keep (or cancels: nothing saved)."""
         s = self.window.session
         if s is None:
             return True
         try:
-            path = s.save()
-        except OSError as exc:
-            self.error("Cannot save the corrections", f"{s.scene.corrections_path}: {exc.strerror or exc}")
+            path = s.save(prefer=prefer)
+        except CorrectionsConflict as exc:
+            answer = self._choose("Conflicting change on disk",
+                                  f"{exc}\n\nKeep your values for the conflicting fields, or take the other "
+                                  "program's? (Either way the other edits of both are kept.)",
+                                  [("local", "Keep mine"), ("disk", "Take theirs"), ("cancel", "Cancel")], "cancel")
+            if answer in ("local", "disk"):
+                return self.save(prefer=answer)
+            self.window.statusBar().showMessage("not saved: " + str(exc), 15_000)
             return False
-        self.window.statusBar().showMessage(f"saved {path}", 5000)
+        except CorrectionsError as exc:
+            self.error("Cannot save the corrections", str(exc))
+            return False
+        except OSError as exc:
+            self.error("Cannot save the corrections", f"{exc.filename or s.scene.corrections_path}: "
+                                                      f"{exc.strerror or exc}")
+            return False
+        self._deferred_signature = None
+        report = s.scene.corrections.last_save
+        msg = f"saved {path} (revision {report.revision})"
+        if report.from_disk:
+            msg += f"; merged {', '.join(report.from_disk)} saved meanwhile by another program (Ctrl+Z undoes)"
+        self.window.statusBar().showMessage(msg, 10_000)
         return True
+
+    # ------------------------------------------------------------------ another program saved
+    def on_disk_change(self) -> str | None:
+        """React to ``corrections.json`` changing on disk; returns what was done ("reloaded",
+        "merged", "later", "conflict") or None when nothing changed."""
+        s = self.window.session
+        if s is None or self._asking:
+            return None
+        try:
+            change = s.check_disk()
+        except CorrectionsError as exc:
+            self.window.statusBar().showMessage(f"corrections.json on disk cannot be read: {exc}", 15_000)
+            return None
+        if change is None or change.signature == self._deferred_signature:
+            return None
+        fields = ", ".join(change.fields) or "nothing"
+        if not s.dirty:
+            s.reload_from_disk(change)
+            self.window.statusBar().showMessage(
+                f"corrections.json was changed by another program (revision {change.revision}: {fields}); "
+                "reloaded (Ctrl+Z undoes)", 15_000)
+            return "reloaded"
+        self._asking = True
+        try:
+            answer = self._choose("Corrections changed on disk",
+                                  f"Another program saved {s.scene.corrections_path} (revision {change.revision}; "
+                                  f"changed: {fields}) while you have unsaved edits.\n\n"
+                                  "Merge: take its edits under yours.\nReload: discard your unsaved edits.\n"
+                                  "Later: decide when you save (the save merges).",
+                                  [("merge", "Merge"), ("reload", "Reload"), ("later", "Later")], "merge")
+            if answer == "reload":
+                s.reload_from_disk(change)
+                self.window.statusBar().showMessage(
+                    f"reloaded corrections.json (revision {change.revision}); your unsaved edits were discarded "
+                    "(Ctrl+Z brings them back)", 15_000)
+                return "reloaded"
+            if answer != "merge":
+                self._deferred_signature = change.signature
+                self.window.statusBar().showMessage(
+                    f"corrections.json changed on disk (revision {change.revision}); it will be merged when you save",
+                    15_000)
+                return "later"
+            try:
+                s.merge_from_disk(change)
+            except CorrectionsConflict as exc:
+                pick = self._choose("Conflicting change on disk",
+                                    f"{exc}\n\nKeep your values for the conflicting fields, or take the other "
+                                    "program's?", [("local", "Keep mine"), ("disk", "Take theirs"),
+                                                   ("cancel", "Cancel")], "cancel")
+                if pick not in ("local", "disk"):
+                    self._deferred_signature = change.signature
+                    self.window.statusBar().showMessage("not merged: " + str(exc), 15_000)
+                    return "conflict"
+                s.merge_from_disk(change, prefer=pick)
+            self.window.statusBar().showMessage(
+                f"merged another program's change to corrections.json (revision {change.revision}: {fields}) "
+                "under your unsaved edits (Ctrl+Z undoes)", 15_000)
+            return "merged"
+        finally:
+            self._asking = False
 
     def maybe_save(self) -> bool:
         """Ask about unsaved changes; False if the user cancels."""
@@ -182,9 +310,7 @@ class Controller(QtCore.QObject):
         def finished(summary):
             dlg.close()
             self.jobs.remove(job)
-            self.window.statusBar().showMessage(
-                f"export done: {summary.written} windows written, {summary.skipped_complete} already complete, "
-                f"{summary.unlabeled} unlabeled -> {summary.out_dir}", 15_000)
+            self.window.statusBar().showMessage(export_done_text(summary), 30_000)
             self.window.last_export = summary
 
         def failed(message, details):
@@ -199,3 +325,16 @@ class Controller(QtCore.QObject):
         job.signals.failed.connect(failed)
         self.jobs.append(job)
         return job.start()
+
+
+def export_done_text(summary) -> str:
+    """The status-bar line after an export, with the review-mark counts of an only-verified export."""
+    text = (f"export done: {summary.written} windows written, {summary.skipped_complete} already complete, "
+            f"{summary.unlabeled} unlabeled -> {summary.out_dir}")
+    if summary.review_marked:
+        text += (f"; verified marks touch {summary.review_marked} windows: "
+                 f"{summary.review_marked - summary.review_unused} exported")
+        if summary.review_unused:
+            text += f", {summary.review_unused} not used (" + "; ".join(
+                f"{n} {r.split(':')[0]}" for r, n in summary.review_unused_reasons.items()) + ")"
+    return text

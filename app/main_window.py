@@ -16,6 +16,7 @@ from widgets.review_panel import ReviewPanel
 from . import actions as A
 from .align import AlignController
 from .controller import Controller
+from .disk_watch import CorrectionsWatcher
 from .settings import Settings
 from .undo_bridge import UndoBridge
 from .workers import LatestWorker
@@ -51,6 +52,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._docks: list[QtWidgets.QDockWidget] = []
         self._unsubscribe = None
         self.undo_bridge: UndoBridge | None = None
+        self.disk_watcher: CorrectionsWatcher | None = None
         self.setWindowTitle("evpose[*]")
         self.resize(1500, 950)
         self.setAcceptDrops(True)
@@ -240,6 +242,9 @@ class MainWindow(QtWidgets.QMainWindow):
             QtCore.QTimer.singleShot(0, self._default_dock_sizes)   # again once laid out
         self.undo_bridge = UndoBridge(session.history, self.actions_by_name["undo"], self.actions_by_name["redo"], self)
         self._unsubscribe = session.subscribe(self._on_session)
+        # another program saving corrections.json (CLI --apply, a second app) is noticed and offered
+        self.disk_watcher = CorrectionsWatcher(session.scene.corrections_path, self)
+        self.disk_watcher.changed.connect(self.controller.on_disk_change)
         self._set_document_actions_enabled(True)
         self._sync_view_actions()
         self.setWindowTitle(f"evpose — {session.scene.name}[*]")
@@ -278,6 +283,10 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.undo_bridge:
             self.undo_bridge.detach()
             self.undo_bridge = None
+        if self.disk_watcher is not None:
+            self.disk_watcher.stop()
+            self.disk_watcher.deleteLater()
+            self.disk_watcher = None
         if self.timeline is not None:
             self.timeline.stop()
         if self.spacetime is not None:

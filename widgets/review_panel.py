@@ -1,4 +1,9 @@
-"""Review marks: verified / rejected / flagged over the current window or a time range."""
+"""Review marks: verified / rejected / flagged over the current window or a time range.
+
+Marks cover grid windows (the current window is a cell of the export grid) and replace older marks of
+their scope on the overlap (:mod:`core.review`). A mark made before a later change of the clock or of
+its object's pose is *stale*: the list shows it greyed and italic with the reason ("verified at
+offset X us (now Y us)"); ``--only-verified`` exports leave stale marks out by default."""
 from __future__ import annotations
 
 from PySide6 import QtCore, QtGui, QtWidgets
@@ -8,6 +13,7 @@ from core.session import Session
 
 STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
 STATUS_KEYS = {"verified": "V", "rejected": "R", "flagged": "F"}
+STALE_COLOR = (130, 130, 130)
 
 
 class ReviewPanel(QtWidgets.QWidget):
@@ -81,7 +87,7 @@ class ReviewPanel(QtWidgets.QWidget):
             self.status.setText("none found after the current window")
             return False
         self.session.set_time(t)
-        self.status.setText("")
+        self.status.setText(self.summary)
         return True
 
     def _jump(self, item: QtWidgets.QListWidgetItem) -> None:
@@ -100,13 +106,30 @@ class ReviewPanel(QtWidgets.QWidget):
     def refresh(self) -> None:
         self.list.clear()
         t_ref = self.session.time_range[0]
+        now = self.session.mark_state()
+        self.stale = {}
         for m in sorted(self.session.scene.corrections.reviews, key=lambda m: m.t0_us):
             text = f"{m.status:9s} {(m.t0_us - t_ref) / 1e6:8.3f}–{(m.t1_us - t_ref) / 1e6:.3f} s"
             if m.object:
                 text += f"  [{m.object}]"
             if m.note:
                 text += f"  {m.note}"
-            item = QtWidgets.QListWidgetItem(text)
-            item.setForeground(QtGui.QColor(*STATUS_COLORS[m.status]))
+            reasons = self.session.stale_reasons(m, now=now)
+            item = QtWidgets.QListWidgetItem()
+            if reasons:
+                self.stale[m] = reasons
+                text += "  STALE: " + "; ".join(reasons)
+                item.setForeground(QtGui.QColor(*STALE_COLOR))
+                font = item.font()
+                font.setItalic(True)
+                item.setFont(font)
+                item.setToolTip("This mark was made on other labels: " + "; ".join(reasons)
+                                + ".\nMark the window again to verify the current labels.")
+            else:
+                item.setForeground(QtGui.QColor(*STATUS_COLORS[m.status]))
+            item.setText(text)
             item.setData(QtCore.Qt.UserRole, m)
             self.list.addItem(item)
+        n = self.list.count()
+        self.summary = f"{n} mark{'s' * (n != 1)}" + (f", {len(self.stale)} stale" if self.stale else "")
+        self.status.setText(self.summary)

@@ -50,13 +50,17 @@ LEFT_AXIS_W, RIGHT_AXIS_W = 62, 52
 
 @dataclass
 class MarkRegion:
-    """One drawn review region: a run of merged, overlapping or adjacent marks of one status and scope."""
+    """One drawn review region: a run of merged, overlapping or adjacent marks of one status and scope.
+
+    ``stale``: the marks were made before a later change of the clock or of the object's pose (drawn
+    hatched, with the reason in the tooltip)."""
 
     t0_us: int
     t1_us: int
     status: str
     object: str | None
     item: pg.LinearRegionItem
+    stale: bool = False
 
 
 class _ScrubViewBox(pg.ViewBox):
@@ -433,6 +437,8 @@ class Timeline(QtWidgets.QWidget):
             if not self._data_timer.isActive():
                 self._data_timer.setInterval(int(min(max(2 * self.data_compute_ms, 15), 250)))
                 self._data_timer.start()
+            if self._stale_key() != self._marks_stale_key:
+                self._rebuild_marks()      # a clock or pose change made marks stale (or fresh again)
         elif what == "reviews":
             self._rebuild_marks()
         elif what == "objects":
@@ -461,15 +467,30 @@ class Timeline(QtWidgets.QWidget):
         t = v.t_us if t_us is None else t_us
         self.readout.setText(f"{self.x_of(t):.6f} s │ {t} µs │ win {v.window_us / 1000:g} ms")
 
+    _marks_stale_key = None
+
+    def _stale_key(self) -> tuple:
+        now = self.session.mark_state()
+        return tuple(bool(self.session.stale_reasons(m, now=now)) for m in self.session.scene.corrections.reviews)
+
     def _rebuild_marks(self) -> None:
         for m in self.marks:
             self.plot.removeItem(m.item)
         self.marks = []
         names = self.session.object_names
         groups: dict[tuple, list] = {}
+        why: dict[tuple, str] = {}
+        now = self.session.mark_state()
+        stale_flags = []
         for mark in self.session.scene.corrections.reviews:
-            groups.setdefault((mark.status, mark.object), []).append((mark.t0_us, mark.t1_us))
-        for (status, obj), spans in groups.items():
+            reasons = self.session.stale_reasons(mark, now=now)
+            stale_flags.append(bool(reasons))
+            key = (mark.status, mark.object, bool(reasons))
+            groups.setdefault(key, []).append((mark.t0_us, mark.t1_us))
+            if reasons:
+                why.setdefault(key, "; ".join(reasons))
+        self._marks_stale_key = tuple(stale_flags)
+        for (status, obj, stale), spans in groups.items():
             spans.sort()
             runs = [list(spans[0])]
             for t0, t1 in spans[1:]:
@@ -484,17 +505,24 @@ class Timeline(QtWidgets.QWidget):
                 k = names.index(obj) if obj in names else len(names)
                 span = (max(1.0 - (k + 1) * OBJECT_LANE, 0.0), 1.0 - k * OBJECT_LANE)
                 alpha, z = OBJECT_MARK_ALPHA, -10
+            if stale:
+                brush = pg.mkBrush(*color, min(alpha * 3, 255))
+                brush.setStyle(QtCore.Qt.BDiagPattern)      # hatched: verified on other labels
+                pen = pg.mkPen(*color, min(alpha + 60, 255), style=QtCore.Qt.DashLine)
+            else:
+                brush, pen = pg.mkBrush(*color, alpha), pg.mkPen(*color, min(alpha + 60, 255))
             for t0, t1 in runs:
                 item = pg.LinearRegionItem((self.x_of(t0), self.x_of(t1)), movable=False, span=span,
-                                           brush=pg.mkBrush(*color, alpha), pen=pg.mkPen(*color, min(alpha + 60, 255)))
+                                           brush=brush, pen=pen)
                 item.setZValue(z)
                 item.setAcceptedMouseButtons(QtCore.Qt.NoButton)
                 for line in item.lines:
                     line.setAcceptedMouseButtons(QtCore.Qt.NoButton)
                 item.setToolTip(f"{status}{'' if obj is None else ' (' + obj + ')'}: "
-                                f"{self.x_of(t0):.3f}–{self.x_of(t1):.3f} s")
+                                f"{self.x_of(t0):.3f}–{self.x_of(t1):.3f} s"
+                                + (f"\nSTALE: {why[(status, obj, stale)]}" if stale else ""))
                 self.plot.addItem(item, ignoreBounds=True)
-                self.marks.append(MarkRegion(int(t0), int(t1), status, obj, item))
+                self.marks.append(MarkRegion(int(t0), int(t1), status, obj, item, stale))
 
     # ------------------------------------------------------------------ scrubbing
     def _scrub_to(self, x_s: float, final: bool) -> None:

@@ -99,6 +99,12 @@ def test_verified_then_rejected_is_one_mark_and_undo_restores(scene_copy):
     assert [m.status for m in s.scene.corrections.reviews] == ["rejected"]
     s.history.undo()
     assert [m.status for m in s.scene.corrections.reviews] == ["verified"]
+    # an object's own mark, then a mark for all objects over it: the newer decision holds for that object
+    s.add_review("rejected", obj="box")
+    assert s.scene.corrections.review_status(s.view.t_us, "box") == "rejected"
+    s.add_review("verified")
+    assert s.scene.corrections.review_status(s.view.t_us, "box") == "verified"
+    assert len(s.scene.corrections.reviews) == 1
 
 
 def test_mark_records_state_and_goes_stale_on_clock_and_pose_changes(scene_copy):
