@@ -58,6 +58,9 @@ class ReviewPanel(QtWidgets.QWidget):
         row.addWidget(self.next_flagged)
         lay.addLayout(row)
         self.list = QtWidgets.QListWidget()
+        self.list.setWordWrap(True)                     # a stale mark's reason wraps instead of being cut
+        self.list.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarAlwaysOff)
+        self.list.setResizeMode(QtWidgets.QListView.Adjust)
         self.list.itemDoubleClicked.connect(self._jump)
         lay.addWidget(self.list, 1)
         remove = QtWidgets.QPushButton("Remove mark")
