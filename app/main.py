@@ -1,6 +1,7 @@
 """Start the desktop app: ``evpose gui [SCENE] [--screenshot PNG] [--quit-after S]``."""
 from __future__ import annotations
 
+import re
 import sys
 import traceback
 from pathlib import Path
@@ -20,6 +21,38 @@ def _install_excepthook(window) -> None:
             window.last_error = text
 
     sys.excepthook = hook
+
+
+def _shut_down(app, window) -> None:
+    """Close the window and stop its worker threads: a QThread destroyed while running aborts the
+    process (exit 134, "QThread: Destroyed while thread ... is still running") at interpreter exit."""
+    if window.isVisible():
+        window.close()                  # closeEvent stops the frame / space-time workers
+    for w in (getattr(window, "frame_worker", None), getattr(window, "spacetime_worker", None)):
+        if w is not None:
+            w.stop()
+    app.processEvents()
+
+
+def _one_line(message: str) -> str:
+    """The last line of a worker's traceback text, without the exception's class name."""
+    lines = [ln.strip() for ln in str(message).strip().splitlines() if ln.strip()]
+    last = lines[-1] if lines else "unknown error"
+    head, sep, rest = last.partition(": ")
+    return rest if sep and re.fullmatch(r"[A-Za-z_][\w.]*(Error|Exception|Failure)", head) else last
+
+
+def _load_for_unattended(session) -> str | None:
+    """Load every mesh now (an unattended run has no dialog to show a late error in); returns the
+    error line or None."""
+    from core.cli import _input_errors
+
+    try:
+        for name in session.scene.object_names:
+            session.scene.model(name)
+    except _input_errors() as exc:
+        return str(exc)
+    return None
 
 
 def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_after: float | None = None,
@@ -51,8 +84,10 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     window.show()
     if scene:
         session = window.controller.open_scene(scene)
-        if session is None and unattended:
-            sys.stderr.write(f"evpose gui: {window.last_error}\n")
+        problem = window.last_error if session is None else (_load_for_unattended(session) if unattended else None)
+        if problem is not None and unattended:
+            sys.stderr.write(f"evpose gui: error: {_one_line(problem)}\n")
+            _shut_down(app, window)
             return 2
         if session is not None and start_busiest:
             session.set_time(session.busiest_time())
@@ -62,6 +97,10 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
         t_start.start()
 
         def tick():
+            if window.last_error:           # a view could not be computed: report it, do not wait for it
+                sys.stderr.write(f"evpose gui: error: {_one_line(window.last_error)}\n")
+                app.exit(2)
+                return
             drawn = window.session is None or (window.frame is not None and window.spacetime_drawn())
             if t_start.elapsed() >= wait_s * 1000 and drawn:
                 if screenshot:
@@ -76,4 +115,6 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
         timer = QtCore.QTimer(window, interval=100)
         timer.timeout.connect(tick)
         timer.start()
-    return app.exec()
+    rc = app.exec()
+    _shut_down(app, window)
+    return rc

@@ -41,6 +41,49 @@ def _open(path):
     return Scene.open(path)
 
 
+#: Option bounds (checked before the scene is opened; one error line naming the option).
+MAX_RANGE_MS = 3_600_000.0      # sync search range: an hour either way (the lag scan is ~2 x range / bin long)
+MAX_BIN_US = 1_000_000          # rate bins of a second already blur any motion
+MAX_WINDOWS_OPT = 10_000        # --windows of sync --edges / refine: each costs a render per iteration
+
+
+def _option_error(option: str, message: str):
+    from .cli import CliError
+
+    return CliError(f"{option}: {message}")
+
+
+def _check_int(option: str, value, lo: int, hi: int) -> None:
+    if not lo <= value <= hi:
+        raise _option_error(option, f"must be an integer in [{lo}, {hi}], got {value}")
+
+
+def _check_window_ms(option: str, value: float) -> None:
+    from .annotate import MIN_WINDOW_MS
+
+    if not (math.isfinite(value) and value >= MIN_WINDOW_MS):
+        raise _option_error(option, f"must be at least {MIN_WINDOW_MS:g} ms (a finite number), got {value:g}")
+
+
+def check_sync_args(args) -> None:
+    """Refuse nonsensical ``sync`` options with one line naming the option (:class:`core.cli.CliError`)."""
+    if not (math.isfinite(args.range_ms) and 0 < args.range_ms <= MAX_RANGE_MS):
+        raise _option_error("--range-ms", f"must be a positive number of milliseconds up to {MAX_RANGE_MS:g}, "
+                            f"got {args.range_ms:g}")
+    if not (1000 <= args.bin_us <= MAX_BIN_US and args.bin_us % 1000 == 0):
+        raise _option_error("--bin-us", f"must be a multiple of 1000 us between 1000 and {MAX_BIN_US} "
+                            f"(the event rate comes from the millisecond index), got {args.bin_us}")
+    _check_int("--windows", args.windows, 1, MAX_WINDOWS_OPT)
+
+
+def check_refine_args(args) -> None:
+    _check_int("--windows", args.windows, 1, MAX_WINDOWS_OPT)
+
+
+def check_score_args(args) -> None:
+    _check_window_ms("--window-ms", args.window_ms)
+
+
 def _save(scene, data: dict) -> str:
     """Save the applied corrections through the one checked save path (revision check, merge with
     another program's edits saved meanwhile, or a refusal naming the conflict: raised as
@@ -69,6 +112,7 @@ def _progress(args):
 
 # ---------------------------------------------------------------------------- sync
 def cmd_sync(args) -> int:
+    check_sync_args(args)
     from .history import History
     from .sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
 
@@ -140,6 +184,7 @@ def _edges_line(r, label: str = "edges") -> str:
 
 # ---------------------------------------------------------------------------- refine
 def cmd_refine(args) -> int:
+    check_refine_args(args)
     from .history import History
     from .refine import RefineParams, apply_offset_result, refine_object, refine_offset
 
@@ -192,11 +237,12 @@ def cmd_refine(args) -> int:
 
 # ---------------------------------------------------------------------------- score
 def cmd_score(args) -> int:
+    check_score_args(args)
     from .score import score_windows
 
     scene = _open(args.scene)
     try:
-        table = score_windows(scene, window_us=int(args.window_ms * 1000), progress=_progress(args))
+        table = score_windows(scene, window_us=int(round(args.window_ms * 1000)), progress=_progress(args))
     finally:
         scene.close()
     if not args.json and not getattr(args, "quiet", False):

@@ -30,6 +30,18 @@ from .raster import Rasterizer
 from .trajectory import ClockModel
 
 LABEL_AT = ("center", "end", "start")
+#: Shortest window the command line accepts (``--window-ms``), ms: poses are sampled every few ms, so
+#: shorter windows add no label information, while the work and the files grow with the window count
+#: (0.1 ms is 10 000 windows per second of recording, 100x the default; 1 µs windows made a 0.8 s scene
+#: export run for hours).
+MIN_WINDOW_MS = 0.1
+#: Most windows one tiling may hold (a Python list of windows; ~17 µs and ~200 bytes each to build):
+#: 28 hours of 10 ms windows.
+MAX_WINDOWS = 10_000_000
+
+
+class WindowError(ValueError):
+    """A window tiling that cannot be built (non-positive length, too many windows)."""
 
 
 @dataclass(frozen=True)
@@ -66,13 +78,17 @@ def time_windows(store, window_us: int, *, label_at: str = "center", t_start_us=
     last event, so every event belongs to exactly one window.
     """
     if window_us <= 0:
-        raise ValueError(f"window length must be positive, got {window_us} us")
+        raise WindowError(f"window length must be positive, got {window_us} us")
     if store.t_first_us is None:
         return []
     t_a = store.t_first_us if t_start_us is None else int(t_start_us)
     t_b = store.t_last_us + 1 if t_end_us is None else int(t_end_us)
     if t_b <= t_a:
         return []
+    n = -(-(t_b - t_a) // int(window_us))
+    if n > MAX_WINDOWS:
+        raise WindowError(f"{getattr(store, 'path', 'events')}: window length {window_us} us makes {n:,} windows "
+                          f"over {(t_b - t_a) / 1e6:g} s, more than {MAX_WINDOWS:,}; use longer windows")
     edges = np.arange(t_a, t_b, int(window_us), dtype=np.int64)
     edges = np.append(edges, edges[-1] + int(window_us))
     idx = store.indices_of(edges)
@@ -87,8 +103,11 @@ def count_windows(store, n_events: int, *, label_at: str = "center") -> list[Win
     ``[t of first event, t of last event + 1)``.
     """
     if n_events <= 0:
-        raise ValueError(f"events per window must be positive, got {n_events}")
+        raise WindowError(f"events per window must be positive, got {n_events}")
     n = store.n_events
+    if -(-n // int(n_events)) > MAX_WINDOWS:
+        raise WindowError(f"{getattr(store, 'path', 'events')}: {n_events} events per window make "
+                          f"{-(-n // int(n_events)):,} windows, more than {MAX_WINDOWS:,}; use longer windows")
     out = []
     starts = np.arange(0, n, int(n_events), dtype=np.int64)
     if len(starts) == 0:

@@ -27,6 +27,17 @@ DAVIS346_K = ((292.52, 0.0, 172.61), (0.0, 293.19, 130.125), (0.0, 0.0, 1.0))
 DAVIS346_DIST = (-0.362, 0.115, 0.0009576, 4.55e-06, 0.13)
 
 _VALID_DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
+#: Largest sensor side, px: event pixel coordinates are stored as uint16 (``events/x``, ``events/y``).
+MAX_SIDE_PX = 65536
+#: Largest sensor area, px (8192 x 8192): per-pixel buffers (rays, z-buffer, remap tables) cost ~40 bytes
+#: a pixel, 2.7 GB here; event sensors have at most ~1 MP. A 10**9-pixel width would ask for terabytes.
+MAX_AREA_PX = 2**26
+#: Focal lengths must lie within [1e-3, 1e4] x the larger sensor side (a field of view between ~0.006
+#: degrees and all of it): outside, pixel arithmetic overflows (fx = 1e308) or no ray hits the sensor.
+FOCAL_RANGE_PER_SIDE = (1e-3, 1e4)
+#: |cx|, |cy| at most this many sensor sides; |distortion coefficient| at most MAX_ABS_DIST.
+MAX_CENTRE_PER_SIDE = 100.0
+MAX_ABS_DIST = 1e6
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 
@@ -80,8 +91,33 @@ class CameraModel:
             raise CameraError(f"{source}: dist: OpenCV takes 0, 4, 5, 8, 12 or 14 coefficients, got {len(dist)}")
         if not np.all(np.isfinite(dist)):
             raise CameraError(f"{source}: dist: contains NaN or inf")
-        if int(width) != width or int(height) != height or width <= 0 or height <= 0:
+        if np.any(np.abs(dist) > MAX_ABS_DIST):
+            raise CameraError(f"{source}: dist: coefficients must be at most {MAX_ABS_DIST:g} in magnitude, "
+                              f"got {dist.tolist()}")
+        try:
+            ok_int = int(width) == width and int(height) == height
+        except (TypeError, ValueError, OverflowError):
+            ok_int = False
+        if not ok_int or width <= 0 or height <= 0:
             raise CameraError(f"{source}: width/height: must be positive integers, got {width}x{height}")
+        for name, v in (("width", width), ("height", height)):
+            if v > MAX_SIDE_PX:
+                raise CameraError(f"{source}: {name}: {int(v)} px is more than the {MAX_SIDE_PX} px an event "
+                                  "coordinate (uint16) can address")
+        if int(width) * int(height) > MAX_AREA_PX:
+            raise CameraError(f"{source}: width/height: {int(width)}x{int(height)} = {int(width) * int(height):,} "
+                              f"pixels is more than the {MAX_AREA_PX:,} supported (8192 x 8192)")
+        side = float(max(width, height))
+        lo, hi = FOCAL_RANGE_PER_SIDE[0] * side, FOCAL_RANGE_PER_SIDE[1] * side
+        for name, v in (("fx", K[0, 0]), ("fy", K[1, 1])):
+            if not lo <= v <= hi:
+                raise CameraError(f"{source}: K: {name} = {v:g} px is outside [{lo:g}, {hi:g}] "
+                                  f"({FOCAL_RANGE_PER_SIDE[0]:g} to {FOCAL_RANGE_PER_SIDE[1]:g} x the sensor's "
+                                  f"larger side of {int(side)} px)")
+        for name, v in (("cx", K[0, 2]), ("cy", K[1, 2])):
+            if abs(v) > MAX_CENTRE_PER_SIDE * side:
+                raise CameraError(f"{source}: K: {name} = {v:g} px is more than {MAX_CENTRE_PER_SIDE:g} sensor "
+                                  "sides from the image")
         if not near_m > 0:
             raise CameraError(f"{source}: near_m: must be positive, got {near_m}")
         self.K = K

@@ -31,9 +31,12 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from .trajectory import TrajectoryError
     from .export.common import ExportError
     from .importers.common import ImportFailure
+    from .annotate import WindowError
+    from .input_files import InputFileError
 
     return (CliError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
-            ObjectModelError, GeometryError, ExportError, ImportFailure, FileNotFoundError, FileExistsError)
+            ObjectModelError, GeometryError, ExportError, ImportFailure, FileNotFoundError, FileExistsError,
+            WindowError, InputFileError)
 
 
 def _progress_bar(desc: str, enabled: bool = True):
@@ -193,6 +196,7 @@ def ensure_demo_scene(out: Path, quiet: bool = False) -> Path:
 
 
 def cmd_demo(args) -> int:
+    _check_quit_after(args)
     out = Path(args.out) if args.out else default_demo_dir()
     ensure_demo_scene(out, quiet=args.quiet)
     if args.no_gui:
@@ -210,14 +214,29 @@ def _run_gui(scene: str | None, args, start_busiest: bool = False) -> int:
                    start_busiest=start_busiest)
 
 
+def _check_quit_after(args) -> None:
+    q = getattr(args, "quit_after", None)
+    if q is not None and not (q >= 0 and q <= 86_400):
+        raise CliError(f"--quit-after: must be a number of seconds in [0, 86400], got {q}")
+
+
 def cmd_gui(args) -> int:
+    _check_quit_after(args)
     return _run_gui(args.scene, args)
 
 
 # ---------------------------------------------------------------------- parser
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr (``evpose CMD: error: ...``, exit 2),
+    like every other evpose error; the usage is one ``--help`` away. Sub-parsers inherit the class."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="evpose", description="Verify, correct and export 6D object-pose "
-                                "annotations of event-camera recordings.")
+    p = OneLineParser(prog="evpose", description="Verify, correct and export 6D object-pose "
+                      "annotations of event-camera recordings.")
     p.add_argument("--version", action="version", version="evpose 0.1.0")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

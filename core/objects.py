@@ -78,9 +78,15 @@ class ObjectModel:
         """
         import trimesh  # local: keeps `import core` light
 
+        from .input_files import MAX_MESH_BYTES, InputFileError, check_regular
+
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise ObjectModelError(f"{path}: mesh file not found")
+        try:   # a folder, a FIFO or /dev/zero would make trimesh fail late, block or read forever
+            check_regular(path, max_bytes=MAX_MESH_BYTES)
+        except InputFileError as exc:
+            raise ObjectModelError(f"{path}: cannot read the mesh: {exc.reason}") from None
         if not (np.isfinite(mesh_scale) and mesh_scale > 0):
             raise ObjectModelError(f"{path}: mesh_scale: must be a positive number, got {mesh_scale}")
         try:

@@ -4,6 +4,13 @@ the user's corrections into labels ``T_cam_obj(t)``.
 Loading validates everything and raises :class:`SceneError` whose message names the file and the
 field, e.g. ``scene.toml: objects[1].T_base_obj: rotation is not orthonormal (...)``. Event,
 trajectory and mesh files are opened lazily, when first needed.
+
+Paths (``events.path``, ``trajectory.path``, ``objects[i].mesh``): relative paths are relative to the
+scene folder and must stay inside it (``../x`` is refused: a relative path promises that the file
+travels with the folder, and a downloaded scene must not reach out to ``../../etc/passwd`` by
+accident); absolute and ``~`` paths are allowed on purpose (shared model libraries, sources of
+reference-mode imports; evpose itself writes files outside the folder as absolute paths). Every
+path must name a regular file: folders, FIFOs and devices are refused before they are opened.
 """
 from __future__ import annotations
 
@@ -30,6 +37,9 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 SCENE_FORMAT = "evpose-scene/1"
+#: Largest accepted clock skew prior: crystal clocks differ by tens of ppm; 10**5 ppm (10 %) is not a
+#: clock drift but a wrong time unit, and much larger values overflow the clock model's µs arithmetic.
+MAX_SKEW_PPM = 1e5
 SCENE_FILENAME = "scene.toml"
 TRAJECTORY_FRAMES = ("cam", "tcp")
 _KNOWN = {
@@ -163,15 +173,24 @@ def _number(table: dict, key: str, file, fld: str, *, integer=False, default=Non
 
 
 def _path(table: dict, key: str, root: Path, file, fld: str, must_exist=True) -> Path:
+    """A file path of the manifest (see the module docstring for the rule); with ``must_exist``
+    it must name a regular file (checked by ``stat``: FIFOs and devices are never opened here)."""
     v = table.get(key)
     if v is None:
         raise SceneError(file, fld, "missing")
-    if not isinstance(v, str) or not v:
+    if not isinstance(v, str) or not v or "\0" in v:
         raise SceneError(file, fld, f"expected a file path string, got {v!r}")
     p = Path(v).expanduser()
-    p = p if p.is_absolute() else root / p
-    if must_exist and not p.exists():
-        raise SceneError(file, fld, f"file not found: {p}")
+    if not p.is_absolute():
+        if os.path.normpath(v).split(os.sep)[0] == os.pardir:
+            raise SceneError(file, fld, f"relative path {v!r} leaves the scene folder; write it as an absolute "
+                             "path if the file is meant to live outside the scene")
+        p = root / p
+    if must_exist:
+        try:
+            check_regular(p)
+        except InputFileError as exc:
+            raise SceneError(file, fld, str(exc)) from None
     return p
 
 
@@ -205,12 +224,19 @@ def load_manifest(path, *, check_files: bool = True) -> SceneManifest:
     path = Path(path)
     if path.is_dir():
         path = path / SCENE_FILENAME
-    if not path.is_file():
+    if not path.exists():
         raise SceneError(path, "", "scene manifest not found (expected a scene folder or a scene.toml)")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(path, "", f"cannot read ({exc})") from None
+        with open_regular(path, "rb", max_bytes=MAX_MANIFEST_BYTES) as f:
+            raw = f.read()
+        data = tomllib.loads(raw.decode("utf-8"))
+    except InputFileError as exc:
+        raise SceneError(path, "", f"cannot read the scene manifest: {exc.reason}") from None
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise SceneError(path, "", f"line {line}: not UTF-8 text") from None
+    except OSError as exc:
+        raise SceneError(path, "", f"cannot read ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(path, "", f"not valid TOML ({exc})") from None
     root = path.parent
@@ -256,7 +282,13 @@ def load_manifest(path, *, check_files: bool = True) -> SceneManifest:
     if not isinstance(clk, dict):
         raise SceneError(path, "clock", "expected a table")
     offset_us = _number(clk, "offset_us", path, "clock.offset_us", integer=True, default=0)
+    if abs(offset_us) > MAX_ABS_TIME_US:
+        raise SceneError(path, "clock.offset_us", f"{offset_us} is out of range (|offset_us| must be at most "
+                         f"2**53 = {MAX_ABS_TIME_US} us, about 285 years)")
     skew_ppm = float(_number(clk, "skew_ppm", path, "clock.skew_ppm", default=0.0))
+    if abs(skew_ppm) > MAX_SKEW_PPM:
+        raise SceneError(path, "clock.skew_ppm", f"{skew_ppm} is out of range (|skew_ppm| must be at most "
+                         f"{MAX_SKEW_PPM:g}; clocks of real devices differ by tens of ppm)")
 
     raw_objs = data.get("objects", [])
     if not isinstance(raw_objs, list):

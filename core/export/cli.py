@@ -94,10 +94,11 @@ def _input_errors() -> tuple:
     from ..objects import ObjectModelError
     from ..scene import SceneError
     from ..trajectory import TrajectoryError
+    from ..annotate import WindowError
     from .common import ExportError
 
     return (ExportError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
-            ObjectModelError, GeometryError, FileNotFoundError, FileExistsError, NotADirectoryError)
+            ObjectModelError, GeometryError, FileNotFoundError, FileExistsError, NotADirectoryError, WindowError)
 
 
 def summary_text(s) -> str:
@@ -120,15 +121,17 @@ def summary_text(s) -> str:
 
 def cmd_export(args) -> int:
     """Run ``evpose export`` from parsed arguments; returns the exit status."""
+    from ..annotate import MIN_WINDOW_MS
     from ..events import Cancelled
     from . import export_scene
 
     if args.window_ms is not None:
         if not (math.isfinite(args.window_ms) and args.window_ms > 0):
             return _error(f"--window-ms: must be a positive number of milliseconds, got {args.window_ms}")
+        if args.window_ms < MIN_WINDOW_MS:
+            return _error(f"--window-ms: {args.window_ms:g} ms is shorter than the {MIN_WINDOW_MS:g} ms minimum "
+                          "(poses are sampled every few ms; shorter windows only multiply the files)")
         window_us = int(round(args.window_ms * 1000))
-        if window_us < 1:
-            return _error(f"--window-ms: {args.window_ms} ms is shorter than 1 us")
     else:
         window_us = 10_000
     if args.window_events is not None and args.window_events <= 0:

@@ -82,6 +82,41 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     return s
 
 
+def check_args(args) -> str | None:
+    """The first nonsensical numeric option as one message naming it (None when all are sane); checked before
+    anything is read. Deeper checks (units, calibration) stay with :class:`~.common.ImportOptions` and the
+    formats."""
+    import math
+
+    from ..camera import MAX_SIDE_PX
+    from ..trajectory import MAX_ABS_TIME_US
+
+    def bad_float(name, v, lo, hi, lo_open=False):
+        if v is None:
+            return None
+        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+            return f"{name}: must be a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {v}"
+        return None
+
+    def bad_int(name, v, lo, hi):
+        if v is not None and not lo <= v <= hi:
+            return f"{name}: must be an integer in [{lo}, {hi}], got {v}"
+        return None
+
+    checks = (
+        bad_float("--max-span-s", args.max_span_s, 0.0, 10 * 365 * 86400.0, lo_open=True),
+        bad_float("--reorder-window-ms", args.reorder_window_ms, 0.0, 3_600_000.0),
+        bad_float("--mesh-scale", args.mesh_scale, 0.0, 1e6, lo_open=True),
+        bad_int("--width", args.width, 1, MAX_SIDE_PX),
+        bad_int("--height", args.height, 1, MAX_SIDE_PX),
+        bad_int("--offset-us", args.offset_us, -MAX_ABS_TIME_US, MAX_ABS_TIME_US),
+        bad_int("--time-origin-us", args.time_origin_us, -MAX_ABS_TIME_US, MAX_ABS_TIME_US),
+        bad_int("--frame-us", args.frame_us, 1, 10**9),
+        bad_int("--frame-index-offset", args.frame_index_offset, -10**9, 10**9),
+    )
+    return next((c for c in checks if c), None)
+
+
 def options_from_args(args):
     from .common import ImportOptions
 
@@ -103,6 +138,10 @@ def cmd_import(args) -> int:
     from .common import ImportFailure
 
     quiet = getattr(args, "quiet", False)
+    problem = check_args(args)
+    if problem:
+        print(f"evpose import: error: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
     def log(line: str) -> None:
         if quiet and not line.startswith("warning"):

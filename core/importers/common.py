@@ -318,6 +318,38 @@ def guess_time_unit(sample, *, kind: str = "events") -> tuple[str, str, dict]:
     return u, reason, scores
 
 
+#: A forced unit is questioned when its plausibility score (decades from a typical event rate / pose period, see
+#: :func:`guess_time_unit`) is this much worse than the best unit's: 2 decades = a 100x odd rate or period.
+FORCED_UNIT_MARGIN_DECADES = 2.0
+
+
+def _forced_unit_implausible(sample, forced: str, kind: str) -> str | None:
+    """Why the numbers do not look like ``forced`` (None when they plausibly do): e.g. ``--time-unit ns`` on
+    µs data gives 1834 M events/s."""
+    unit, _reason, scores = guess_time_unit(sample, kind=kind)
+    sc, best = scores.get(forced, math.inf), scores.get(unit, math.inf)
+    if not scores or (math.isfinite(sc) and not (sc - best >= FORCED_UNIT_MARGIN_DECADES)):
+        return None
+    v = np.asarray(sample, dtype=np.float64).ravel()
+    v = v[np.isfinite(v)]
+    if len(v) < 2:
+        return None
+    f = _UNIT_S[forced]
+    if kind == "events":
+        span = float(v.max() - v.min()) * f
+        if span <= 0:
+            return None
+        val = f"an event rate of {(len(v) - 1) / span / 1e6:.4g} M events/s"
+    else:
+        d = np.diff(v)
+        pos = d[d > 0]
+        if len(pos) == 0:
+            return None
+        val = f"a pose period of {float(np.median(pos)) * f * 1e3:.4g} ms"
+    better = f"; the values look like {_UNIT_NAMES[unit]}" if unit != forced else ""
+    return f"{_UNIT_NAMES[forced]} give {val}, which is implausible{better} (check --time-unit)"
+
+
 def resolve_time_unit(ctx: ImportContext, sample, *, what: str, kind: str, declared: str | None = None) -> str:
     """Decide the unit of a time column: ``--time-unit`` wins; else the format's ``declared`` unit if the
     numbers are plausible in it; else the guess. The decision goes into the report (and stderr)."""
@@ -325,6 +357,9 @@ def resolve_time_unit(ctx: ImportContext, sample, *, what: str, kind: str, decla
     if forced:
         ctx.report.assume(f"{what}: times in {_UNIT_NAMES[forced]} (--time-unit)")
         ctx.report.details.setdefault("time_units", {})[what] = {"unit": forced, "why": "--time-unit"}
+        implausible = _forced_unit_implausible(sample, forced, kind)
+        if implausible:
+            ctx.report.warn(f"{what}: --time-unit {forced}: {implausible}")
         return forced
     unit, reason, scores = guess_time_unit(sample, kind=kind)
     if declared is not None:
