@@ -309,3 +309,31 @@ def test_reference_mode_scene_gets_no_cache_file_in_the_source_folder(tiny_scene
     assert snapshot(src) == before_src and sorted(os.listdir(src)) == ["events.h5"]
     assert snapshot(d) == before_scene
     assert len(list((cache / "evpose" / "msidx").glob("*.npz"))) == 1
+
+
+def test_reading_a_fifo_never_blocks_even_past_the_manifest_check(tmp_path):
+    """The manifest refuses FIFOs by stat; the readers also open with O_NONBLOCK + fstat, so a path swapped
+    for a FIFO after that check still cannot block (a plain open() waits for a writer forever)."""
+    import threading
+
+    from core.trajectory import Trajectory, TrajectoryError
+
+    fifo = tmp_path / "trajectory.csv"
+    os.mkfifo(fifo)
+    result = {}
+
+    def read():
+        try:
+            Trajectory.load_csv(fifo)
+        except TrajectoryError as exc:
+            result["error"] = str(exc)
+
+    th = threading.Thread(target=read, daemon=True)
+    th.start()
+    th.join(10)
+    if th.is_alive():                       # unblock the reader (a writer appears), then fail
+        with open(fifo, "w"):
+            pass
+        th.join(10)
+        pytest.fail("Trajectory.load_csv blocked on a FIFO")
+    assert "FIFO" in result["error"] and str(fifo) in result["error"]
