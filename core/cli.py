@@ -1,7 +1,8 @@
 """The ``evpose`` command (DESIGN section 5).
 
 ``--json`` prints exactly one JSON document on stdout; messages and progress go to stderr.
-Errors name the file and the field and exit with a non-zero status (2 for bad input, 130 when
+Errors name the file and the field and exit with a non-zero status (2 for bad input, 1 when the system
+refuses a write or read -- full disk, read-only file system, permission --, 130 when
 interrupted).
 """
 from __future__ import annotations
@@ -15,6 +16,8 @@ from pathlib import Path
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+#: The system refused a write or a read (full disk, read-only file system, permission): one line naming the path.
+EXIT_OS_ERROR = 1
 
 
 class CliError(Exception):
@@ -263,7 +266,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--pose-error-deg", type=float, default=0.0, help="rotation error injected, degrees")
     s.add_argument("--contrast", type=float, default=0.2, help="mean contrast threshold (log intensity)")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--force", action="store_true", help="replace an existing scene folder")
+    s.add_argument("--force", action="store_true", help="replace a scene folder evpose made (removes only the files it wrote; "
+                   "refuses when anything else is in it)")
     s.add_argument("--json", action="store_true", help="print the summary as JSON")
     s.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_synth)
@@ -308,6 +312,11 @@ def main(argv=None) -> int:
     except _input_errors() as exc:
         print(f"evpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except OSError as exc:          # the system refused a write or read: full disk, read-only, permission
+        from .fileio import describe_os_error
+
+        print(f"evpose {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return EXIT_OS_ERROR
 
 
 if __name__ == "__main__":
