@@ -17,9 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -30,6 +27,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from .camera import CameraModel
 from .events import Cancelled, EventArray, EventWriter
+from .fileio import with_path
 from .evsim import EventSimulator, SensorParams
 from .geometry import T_from_rotvec, apply_T, inv_T, make_T
 from .objects import ObjectModel, box_model, cylinder_model
@@ -394,13 +392,18 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
              cancel: Callable[[], bool] | None = None) -> dict:
     """Simulate a scene into ``out_dir`` and return a summary (also stored in ground_truth.json).
 
-    The folder is built beside ``out_dir`` under a temporary name and renamed at the end, so a
-    cancelled or failed run leaves nothing behind.
+    The folder is built beside ``out_dir`` under a hidden, locked name and renamed at the end
+    (:class:`core.owned_files.StagingFolder`), so a cancelled or failed run leaves nothing behind, and
+    the leftovers of a killed run are removed by the next. ``overwrite`` replaces an existing scene
+    folder only when it holds nothing but files evpose wrote (and not ``cfg.mesh_dir``); otherwise
+    :class:`core.owned_files.NotOurs` (a ``FileExistsError``) names what is in the way. A full or
+    read-only disk raises ``OSError`` naming ``out_dir``.
     """
+    from .owned_files import StagingFolder, check_scene_out, input_paths
+
     cfg.validate()
-    out_dir = Path(out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
-        raise FileExistsError(f"{out_dir}: the folder exists and is not empty (use --force to replace it)")
+    inputs = input_paths(cfg.mesh_dir)
+    out_dir = check_scene_out(out_dir, inputs, overwrite)
     t_start = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     camera = CameraModel.from_dict(cfg.camera, source="synth camera") if cfg.camera else CameraModel.davis346()
@@ -415,10 +418,14 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
     renderer = SceneRenderer(camera, models, T_true, rng)
     sim = EventSimulator(camera.width, camera.height, cfg.sensor, rng)
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".synth-tmp", dir=out_dir.parent))
-    (tmp / "models").mkdir(parents=True)
+    staging = StagingFolder(out_dir, "synth", "synth")
     try:
+        tmp = staging.create()
+    except OSError as exc:
+        staging.abort()
+        raise with_path(exc, out_dir, replace_temp=staging.path) from None
+    try:
+        (tmp / "models").mkdir()
         T0, _ = motion.true.at_event_time(np.array([e0]), clock_true)
         log0, depth0 = renderer.render(T0[0])
         z_min = float(np.percentile(depth0[np.isfinite(depth0)], 1)) if np.isfinite(depth0).any() else 0.3
@@ -483,14 +490,14 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
                       "frames_rendered": int(is_render.sum()), "runtime_s": time.perf_counter() - t_start},
         }
         (tmp / GROUND_TRUTH_FILENAME).write_text(json.dumps(summary, indent=1) + "\n")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)   # mkdtemp makes a private 0700 folder
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        staging.commit(inputs, overwrite)
+    except BaseException as exc:
+        staging.abort()
+        if isinstance(exc, OSError) and exc.errno is not None and str(exc.filename or "").startswith(str(tmp)):
+            raise OSError(exc.errno, f"{exc.strerror} (while writing {Path(exc.filename).name}; nothing was written)",
+                          str(out_dir)) from None
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename is None:
+            raise with_path(exc, out_dir) from None
         raise
     return summary
 

@@ -79,9 +79,9 @@ def import_scene(fmt: str, sources, out, options: ImportOptions | None = None, *
 
         log = _stderr_log
     ctx = ImportContext(fmt, sources, opts, progress=progress, cancel=cancel, log=log)
-    from .common import check_out
+    from .common import check_out, import_inputs
 
-    check_out(out, opts.force)          # fail fast, before reading anything (checked again when writing)
+    check_out(out, opts.force, import_inputs(sources, opts))   # fail fast, before reading anything (checked again when writing)
     mod, fn = FORMATS[fmt]
     func = getattr(importlib.import_module(f".{mod}", __name__), fn)
     return func([str(s) for s in sources], out, ctx)

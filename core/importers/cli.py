@@ -38,7 +38,8 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     g = s.add_argument_group("common")
     g.add_argument("--repair", action="store_true", help="repair what can be repaired (sort, drop, project "
                    "rotations onto SO(3)) instead of refusing; everything is listed in import_report.json")
-    g.add_argument("--force", action="store_true", help="replace an existing non-empty --out folder")
+    g.add_argument("--force", action="store_true", help="replace a scene evpose made in --out (removes "
+                   "only the files it wrote; never a folder holding a SRC; refuses when anything else is in it)")
     g.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no 'assumed'/'repaired' lines "
                    "(warnings still go to stderr)")

@@ -26,6 +26,7 @@ Every importer turns published data into a scene folder (DESIGN section 4) throu
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -33,7 +34,6 @@ import re
 import shutil
 import sys
 import time
-import uuid
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -43,7 +43,7 @@ import numpy as np
 
 from ..camera import CameraError, CameraModel
 from ..events import Cancelled, EventArray, EventWriter
-from ..fileio import atomic_write_text, fsync_dir
+from ..fileio import atomic_write_text
 from ..geometry import ROTATION_TOLERANCE, make_T, orthonormalize, rotation_angle
 from ..scene import SCENE_FILENAME, ObjectSpec, SceneError, SceneManifest, load_manifest
 from ..trajectory import Trajectory, TrajectoryError
@@ -72,6 +72,11 @@ class ImportFailure(ValueError):
         super().__init__(f"{self.file}: {self.record}: {self.field}: {self.reason}")
 
 
+#: errno values that only writing causes (full disk, quota, read-only file system): they pass through
+#: :func:`wrap_errors` and end as an error about ``--out``, not about the input being parsed.
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
+
+
 @contextlib.contextmanager
 def wrap_errors(file, record: str = "(file)", fld: str = "-", what: str = ""):
     """Turn any exception raised inside into :class:`ImportFailure` naming ``file``/``record``/``field``.
@@ -84,6 +89,11 @@ def wrap_errors(file, record: str = "(file)", fld: str = "-", what: str = ""):
         yield
     except (ImportFailure, Cancelled):
         raise
+    except OSError as exc:
+        if exc.errno in _WRITE_ERRNOS:     # the output is full or read-only: not the input's fault
+            raise
+        msg = str(exc) or type(exc).__name__
+        raise ImportFailure(file, record, fld, f"{what + ': ' if what else ''}{msg} ({type(exc).__name__})") from None
     except MemoryError:
         raise ImportFailure(file, record, fld, f"{what or 'data'} claims an impossible size (out of memory)") from None
     except RecursionError:
@@ -758,15 +768,42 @@ class EventSink:
 
 
 # ---------------------------------------------------------------------------------------------- scene builder
-def check_out(out, force: bool) -> Path:
-    """The absolute output folder; refuses an existing file or non-empty folder unless ``force``."""
-    out = Path(out).expanduser().absolute()
-    if out.exists():
-        if not out.is_dir():
-            raise ImportFailure(out, "(output)", "--out", "exists and is not a folder")
-        if any(out.iterdir()) and not force:
-            raise ImportFailure(out, "(output)", "--out", "the folder exists and is not empty (use --force to replace it)")
-    return out
+def import_inputs(sources, options: "ImportOptions") -> list[Path]:
+    """Every path an import reads: the sources and the paths its options name (calibration, meshes and
+    pose files of ``--objects``, assets, models, the RGB-to-event calibration)."""
+    from ..owned_files import input_paths
+
+    rgb = options.rgb_to_event if options.rgb_to_event not in (None, "auto", "none") else None
+    return input_paths(list(sources or []), options.camera, options.objects, options.assets, options.models, rgb)
+
+
+def check_out(out, force: bool, inputs=()) -> Path:
+    """The absolute output folder; refuses an existing file or non-empty folder unless ``force``, and with
+    ``force`` a folder that holds one of ``inputs`` or anything evpose did not write
+    (:func:`core.owned_files.check_scene_out`)."""
+    from ..owned_files import NotOurs, check_scene_out
+
+    try:
+        return check_scene_out(out, inputs, force)
+    except NotOurs as exc:
+        raise ImportFailure(exc.path, "(output)", "--out", exc.reason) from None
+
+
+def _output_failure(exc: OSError, out: Path, staging: Path) -> ImportFailure | None:
+    """An ``OSError`` of writing the scene (full disk, read-only, permission) as an ImportFailure naming
+    ``out`` (the hidden staging folder is gone by then); None for other errors (e.g. reading an input)."""
+    from ..fileio import is_output_error
+
+    if not is_output_error(exc):
+        return None
+    where = str(exc.filename) if exc.filename is not None else ""
+    if where and not (where == str(staging) or where.startswith(str(staging) + os.sep)
+                      or where == str(out) or where.startswith(str(out) + os.sep) or where == str(out.parent)):
+        return None
+    what = exc.strerror or os.strerror(exc.errno)
+    if where.startswith(str(staging) + os.sep):
+        what += f" while writing {os.path.relpath(where, staging)}"
+    return ImportFailure(out, "(output)", "--out", f"{what}; nothing was written")
 
 
 class SceneBuilder:
@@ -777,9 +814,13 @@ class SceneBuilder:
     """
 
     def __init__(self, out, ctx: ImportContext):
+        from ..owned_files import StagingFolder
+
         self.ctx = ctx
-        self.out = check_out(out, ctx.options.force)
-        self.tmp = self.out.parent / f".{self.out.name}.import-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.inputs = import_inputs(ctx.report.sources, ctx.options)
+        self.out = check_out(out, ctx.options.force, self.inputs)
+        self.staging = StagingFolder(self.out, "import", f"import {ctx.report.fmt}")
+        self.tmp = self.staging.path
         self.writer: EventWriter | None = None
         self.events_ref: str = "events.h5"
         self.objects: list[ObjectSpec] = []
@@ -790,22 +831,28 @@ class SceneBuilder:
 
     def __enter__(self) -> "SceneBuilder":
         try:
-            self.out.parent.mkdir(parents=True, exist_ok=True)
-            (self.tmp / "models").mkdir(parents=True)
+            self.staging.create()
+            (self.tmp / "models").mkdir()
         except OSError as exc:
-            raise ImportFailure(self.out, "(output)", "--out", f"cannot create the scene folder ({exc})") from None
+            self.staging.abort()
+            raise ImportFailure(self.out, "(output)", "--out", f"cannot create the scene folder "
+                                f"({exc.strerror or exc})") from None
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
             self.abort()
+            if isinstance(exc, OSError):
+                failure = _output_failure(exc, self.out, self.tmp)
+                if failure is not None:
+                    raise failure from None
 
     def abort(self) -> None:
         if self.writer is not None:
             with contextlib.suppress(Exception):
                 self.writer.abort()
             self.writer = None
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        self.staging.abort()
 
     # ------------------------------------------------------------------ events
     def event_sink(self, width: int, height: int, expected_events: int | None = None) -> EventSink:
@@ -830,6 +877,7 @@ class SceneBuilder:
         """Use an existing event file: ``link`` (symlink ``events.h5`` -> absolute source) or ``reference``
         (absolute path in ``scene.toml``). The source is never modified."""
         src = Path(src).absolute()
+        self.inputs.append(src)
         if mode == "link":
             os.symlink(src, self.tmp / "events.h5")
             self.events_ref = "events.h5"
@@ -870,6 +918,7 @@ class SceneBuilder:
             src = Path(mesh)
             if not src.is_file():
                 raise ImportFailure(src, name, "mesh", "mesh file not found")
+            self.inputs.append(src)
             if src.suffix.lower() not in MESH_SUFFIXES:
                 self.ctx.report.warn(f"{src}: mesh suffix {src.suffix!r} is not one of {MESH_SUFFIXES}; copied anyway")
             dst = self.tmp / "models" / f"{safe}{src.suffix.lower()}"
@@ -938,19 +987,12 @@ class SceneBuilder:
         return self.out
 
     def _place(self) -> None:
-        trash = None
-        if self.out.exists():
-            trash = self.out.parent / f".{self.out.name}.replaced-{uuid.uuid4().hex[:8]}"
-            os.rename(self.out, trash)
+        from ..owned_files import NotOurs
+
         try:
-            os.rename(self.tmp, self.out)
-        except BaseException:
-            if trash is not None:
-                os.rename(trash, self.out)
-            raise
-        fsync_dir(self.out.parent)
-        if trash is not None:
-            shutil.rmtree(trash, ignore_errors=True)
+            self.staging.commit(self.inputs, self.ctx.options.force)
+        except NotOurs as exc:
+            raise ImportFailure(exc.path, "(output)", "--out", exc.reason) from None
 
 
 def _obj_material_files(obj: Path) -> list[Path]:
