@@ -17,6 +17,7 @@ its global lock), but it must not be shared across processes: open one store per
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import operator
 import os
@@ -28,7 +29,7 @@ import h5py
 import hdf5plugin  # noqa: F401  (registers the Blosc filter so that readers can decompress)
 import numpy as np
 
-from .fileio import temp_path_for
+from .fileio import ensure_free_space, fsync_dir, fsync_path, os_error_from_hdf5, temp_path_for, with_path
 
 __all__ = ["EventFileError", "Cancelled", "EventArray", "EventStore", "EventWriter", "write_events_h5"]
 
@@ -44,6 +45,10 @@ _SCAN_CHUNK_EVENTS = 2**21      # events per step of the index-building pass (~1
 _BISECT_MAX = 2**16             # narrow a search range by single-element reads until it is this small
 _WINDOW_T_READ_MAX = 2**22      # window(): read the times of both boundary bins at once up to this many events
 _FLUSH_EVENTS = 2**20           # EventWriter buffers about this many events between HDF5 writes
+#: EventWriter's free-space check: stored bytes per event before compression (x, y: 2 each, t: 8, p: 1, an upper
+#: bound of the compressed size) and a margin for HDF5's metadata and for closing the file.
+_BYTES_PER_EVENT = 13
+_WRITER_MARGIN_BYTES = 1 << 20
 # HDF5 chunk cache per dataset (default 1 MiB): 32+ chunks, about 1 s of events at 1 M ev/s, so scrubbing back and
 # forth hits it; 4 x 4 MiB bounds a store's memory whatever the file size (16 MiB let a 5 M-event file fit, the
 # bench then showed RSS growing with the file).
@@ -649,6 +654,8 @@ class EventWriter:
         if compression not in comp:
             raise ValueError(f"EventWriter: compression must be 'blosc-lz4', 'gzip' or None, got {compression!r}")
         self.path = Path(path)
+        # named with our pid: a cleaner in another process never takes it for a leftover while we live (not
+        # flock'ed: HDF5 takes its own flock on the files it opens)
         self._tmp = temp_path_for(self.path)
         self._u32 = time_dtype == "uint32"
         self._offset = None if t_offset_us is None else operator.index(t_offset_us)
@@ -656,14 +663,19 @@ class EventWriter:
         self._block = int(chunk_events) * max(1, _FLUSH_EVENTS // int(chunk_events))   # flush whole chunks only
         self._pending, self._n_pending, self._n_written, self._n_appended = [], 0, 0, 0
         self._last_t, self._index, self._closed = None, _MsIndexBuilder(0), False
-        self._h5 = h5py.File(self._tmp, "w")
+        self._h5, self._ds = None, []
         try:
-            for f, dt in zip("xytp", (np.uint16, np.uint16, np.uint32 if self._u32 else np.int64, np.uint8)):
-                self._h5.create_dataset(f"events/{f}", shape=(0,), maxshape=(None,), dtype=dt,
-                                        chunks=(int(chunk_events),), **comp[compression])
-        except BaseException:
+            ensure_free_space(self.path, _WRITER_MARGIN_BYTES, "a new event file")
+            # no chunk cache: every write reaches the file at once, so a full disk fails that write (an evicted
+            # chunk's failure would surface only when HDF5 closes the file, and it could not close it then)
+            self._h5 = h5py.File(self._tmp, "w", rdcc_nbytes=0)
+            # one handle per dataset for the writer's life (no lookup per block)
+            self._ds = [self._h5.create_dataset(f"events/{f}", shape=(0,), maxshape=(None,), dtype=dt,
+                                                chunks=(int(chunk_events),), **comp[compression])
+                        for f, dt in zip("xytp", (np.uint16, np.uint16, np.uint32 if self._u32 else np.int64, np.uint8))]
+        except BaseException as exc:
             self.abort()
-            raise
+            raise self._output_error(exc) from None
 
     def _check_cancel(self):
         if self._cancel is not None and self._cancel():
@@ -709,13 +721,26 @@ class EventWriter:
             if self._n_pending >= self._block:
                 self._flush()
 
+    def _output_error(self, exc: BaseException) -> BaseException:
+        """An HDF5 or OS error of writing, as an ``OSError`` naming :attr:`path` (the temp file is gone)."""
+        exc = os_error_from_hdf5(exc, self.path)
+        if isinstance(exc, OSError) and exc.errno is not None:
+            return with_path(exc, self.path, replace_temp=self._tmp)
+        return exc
+
     def _flush(self) -> None:
         if self._n_pending:
             n0, n1 = self._n_written, self._n_written + self._n_pending
-            for k, f in enumerate("xytp"):
-                ds = self._h5[f"events/{f}"]
-                ds.resize((n1,))
-                ds[n0:n1] = np.concatenate([part[k] for part in self._pending])
+            # a full disk must fail here, before HDF5 runs into it (HDF5 then cannot even close the file)
+            ensure_free_space(self.path, self._n_pending * _BYTES_PER_EVENT + _WRITER_MARGIN_BYTES,
+                              f"{self._n_pending:,} events")
+            try:
+                for k, ds in enumerate(self._ds):
+                    ds.resize((n1,))
+                    ds[n0:n1] = np.concatenate([part[k] for part in self._pending])
+                self._h5.flush()             # metadata too: a full disk fails here, where the file can still close
+            except (OSError, RuntimeError) as exc:
+                raise self._output_error(exc) from None
             self._pending, self._n_pending, self._n_written = [], 0, n1
             if self._progress is not None:
                 self._progress(n1, self._expected)
@@ -727,37 +752,38 @@ class EventWriter:
             return self.path
         try:
             self._flush()
-            self._h5.create_dataset("ms_to_idx", data=self._index.finish())
+            index = self._index.finish()
+            ensure_free_space(self.path, index.nbytes + _WRITER_MARGIN_BYTES, "the event index")
+            self._h5.create_dataset("ms_to_idx", data=index)
             self._h5.create_dataset("t_offset", data=np.int64(self._offset or 0))
+            self._h5.flush()                 # a full disk fails here; close() then has nothing left to write
             self._h5.close()
-            fd = os.open(self._tmp, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+            fsync_path(self._tmp)
             os.replace(self._tmp, self.path)
-        except BaseException:
+        except BaseException as exc:
             self.abort()
-            raise
+            raise self._output_error(exc) from None
         self._closed = True
-        try:   # make the rename durable (best effort: not every platform can fsync a directory)
-            fd = os.open(self.path.parent, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-        except OSError:
-            pass
+        fsync_dir(self.path.parent)          # make the rename durable (best effort)
         return self.path
 
     def abort(self) -> None:
-        """Discard everything written so far (no file at ``path``, no temp file left)."""
+        """Discard everything written so far (no file at ``path``, no temp file left).
+
+        A full disk fails a write or a flush (the file has no chunk cache), leaving HDF5 able to close
+        the file; the temp file is also truncated before the close, so that a close that still has
+        metadata to write finds room (an HDF5 file that cannot be closed crashes the interpreter at exit).
+        """
         self._closed = True
         try:
             if self._h5 is not None and self._h5.id.valid:
-                self._h5.close()
+                with contextlib.suppress(OSError):
+                    os.truncate(self._tmp, 0)
+                with contextlib.suppress(Exception):
+                    self._h5.close()
         finally:
             self._h5 = None
+            self._ds = []
             self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> "EventWriter":
