@@ -128,27 +128,28 @@ class BopWriter(FormatWriter):
 
         scene = ctx.scene
         sd = self.scene_dir(ctx.out_dir)
-        for sub in ("rgb", "mask", "mask_visib"):
-            (sd / sub).mkdir(parents=True, exist_ok=True)
-        (ctx.out_dir / "models").mkdir(exist_ok=True)
+        dirs = [sd] + [sd / sub for sub in ("rgb", "mask", "mask_visib")] + [ctx.out_dir / "models"]
+        ctx.owned.dirs([d for d in dirs if not d.is_dir()])       # logged before they exist (core.owned_files)
+        for d in dirs:
+            d.mkdir(exist_ok=True)
         ids = bop_obj_ids(scene, ctx.names)
         info = {}
         for n in ctx.names:
             m = scene.model(n)
             lo, hi = m.bbox_min_max
             data = trimesh.Trimesh(m.vertices_m * 1000.0, m.faces, process=False).export(file_type="ply")
-            write_atomic(ctx.out_dir / "models" / f"obj_{ids[n]:06d}.ply", data, ctx.fsync)
+            write_atomic(ctx.out_dir / "models" / f"obj_{ids[n]:06d}.ply", data, ctx.fsync, ctx.owned)
             info[str(ids[n])] = {"diameter": m.diameter_m * 1000.0,
                                  "min_x": float(lo[0] * 1000.0), "min_y": float(lo[1] * 1000.0),
                                  "min_z": float(lo[2] * 1000.0), "size_x": float((hi[0] - lo[0]) * 1000.0),
                                  "size_y": float((hi[1] - lo[1]) * 1000.0), "size_z": float((hi[2] - lo[2]) * 1000.0)}
-        write_atomic(ctx.out_dir / "models" / "models_info.json", _dump_keyed(info).encode(), ctx.fsync)
+        write_atomic(ctx.out_dir / "models" / "models_info.json", _dump_keyed(info).encode(), ctx.fsync, ctx.owned)
         K = _K_of(scene, self.K_new)
         cam = scene.camera
         write_atomic(ctx.out_dir / "camera.json",
                      json_text({"cx": K[0, 2], "cy": K[1, 2], "depth_scale": 1.0, "fx": K[0, 0], "fy": K[1, 1],
-                                "height": cam.height, "width": cam.width}).encode(), ctx.fsync)
-        write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync)
+                                "height": cam.height, "width": cam.width}).encode(), ctx.fsync, ctx.owned)
+        write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync, ctx.owned)
         ctx.extra["object_extra"] = {n: {"obj_id": ids[n]} for n in ctx.names}
         ctx.extra["manifest_extra"] = {"K_new": K.tolist(), "scene_id": self.scene_id}
 
@@ -157,7 +158,7 @@ class BopWriter(FormatWriter):
         written = {i: r for i, r in records.items() if r.get("status") == "written"}
         for name, key in (("scene_gt.json", "gt"), ("scene_gt_info.json", "info"), ("scene_camera.json", "cam"),
                           ("scene_times.json", "times")):
-            write_atomic(sd / name, _dump_keyed({i: r[key] for i, r in written.items()}).encode(), ctx.fsync)
+            write_atomic(sd / name, _dump_keyed({i: r[key] for i, r in written.items()}).encode(), ctx.fsync, ctx.owned)
         ids = bop_obj_ids(ctx.scene, ctx.names)
         s = f"{self.scene_id:06d}"
         files = ["camera.json", "models/models_info.json"] + [f"models/obj_{ids[n]:06d}.ply" for n in ctx.names]
@@ -239,7 +240,7 @@ class BopWriter(FormatWriter):
                          "n_events": int(len(ev)), "n_events_in_image": int(len(evu)),
                          "offset_us": st["offset_us"], "skew_ppm": st["skew_ppm"]}}
         t1 = time.perf_counter()
-        with AtomicBatch(wctx.fsync_files) as batch:
+        with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
             for path, data in blobs:
                 batch.add(path, data)                         # rgb last: marks the window complete
         t2 = time.perf_counter()

@@ -22,10 +22,13 @@ Vocabulary
 Output folder state
 -------------------
 ``OUT/.evpose/config.json`` holds the configuration fingerprint (:func:`export_fingerprint`). A run into
-a folder with the same fingerprint resumes; a different fingerprint is refused with
-:class:`ExportError` unless ``force`` (then every entry of the folder is deleted first). A non-empty
-folder without ``.evpose/config.json`` is never written into, even with ``force`` (it is not ours to
-clear). ``.*.tmp`` leftovers of interrupted atomic writes are removed on start and on interrupt.
+a folder with the same fingerprint resumes. Otherwise (:func:`_prepare_out_dir`) only what evpose can
+prove it wrote is ever removed: every file is logged in ``OUT/.evpose/owned-*.log`` before it appears
+under its name (:mod:`core.owned_files`; the workers log their own). Anything else in the folder -- a
+file the user added, or one of ours changed since -- refuses the run, even with ``force``, naming it;
+so does a folder holding an input (the scene). An earlier export with results (journaled windows or a
+finished export) is replaced only with ``force``; one without (a run that failed early) is replaced
+without. evpose's temporary files (``.<name>.<pid>-<n>.tmp``) are removed on start and on interrupt.
 
 Atomicity and durability
 ------------------------
@@ -53,7 +56,6 @@ import itertools
 import json
 import math
 import os
-import shutil
 import signal
 import time
 from dataclasses import asdict, dataclass, field
@@ -65,7 +67,8 @@ import numpy as np
 from ..annotate import Annotator, Request, Window, count_windows, time_windows
 from ..corrections import Corrections
 from ..events import Cancelled, EventArray
-from ..fileio import fsync_dir
+from ..fileio import TEMP_RE, fsync_dir, sync_filesystem, with_path
+from ..owned_files import OwnedLog, held_input, in_the_way, inventory, remove_owned
 from ..trajectory import REASON_AFTER, REASON_BEFORE
 
 __all__ = [
@@ -356,14 +359,16 @@ def fingerprint_sha(doc: dict) -> str:
 
 # ------------------------------------------------------------------------------------------- files
 def clean_temp_files(root) -> int:
-    """Remove leftovers of interrupted atomic writes (``.*.tmp``) under ``root``; returns how many."""
+    """Remove leftovers of interrupted atomic writes under ``root``: evpose's temporary names only
+    (``.<name>.<pid>-<n>.tmp``, :data:`core.fileio.TEMP_RE`; a user's ``.notes.tmp`` stays). The caller
+    holds the folder's lock, so no other export writes there. Returns how many were removed."""
     root = Path(root)
     if not root.is_dir():
         return 0
     n = 0
     for dirpath, _dirs, files in os.walk(root):
         for f in files:
-            if f.startswith(".") and f.endswith(".tmp"):
+            if TEMP_RE.match(f):
                 with contextlib.suppress(OSError):
                     os.unlink(os.path.join(dirpath, f))
                     n += 1
@@ -396,9 +401,11 @@ class AtomicBatch:
     touched. Files are renamed in the order they were added, so the last one added appears last.
     """
 
-    def __init__(self, durable: bool = True):
+    def __init__(self, durable: bool = True, log: OwnedLog | None = None):
         self.durable = durable
+        self.log = log
         self._pending: list[tuple[Path, Path]] = []
+        self._stats: list[tuple[Path, int, int]] = []
 
     _counter = itertools.count(1)      # next() is atomic in CPython: unique names across threads
 
@@ -416,7 +423,10 @@ class AtomicBatch:
 
     def add(self, path, data) -> None:
         path = Path(path)
-        tmp, fd = self._open_temp(path)
+        try:
+            tmp, fd = self._open_temp(path)
+        except OSError as exc:
+            raise with_path(exc, path) from None
         self._pending.append((tmp, path))
         try:
             view = memoryview(data)
@@ -425,13 +435,24 @@ class AtomicBatch:
                 view = view[k:]
             if self.durable:
                 os.fsync(fd)
+            if self.log is not None:
+                st = os.fstat(fd)          # size and mtime stay as they are through the rename
+                self._stats.append((path, st.st_size, st.st_mtime_ns))
+        except OSError as exc:
+            raise with_path(exc, path) from None     # os.write errors name no file
         finally:
             os.close(fd)
 
     def commit(self) -> None:
         dirs = []
+        if self.log is not None:       # logged before they appear under their names (see core.owned_files)
+            self.log.files(self._stats)
+            self._stats = []
         for i, (tmp, path) in enumerate(self._pending):
-            os.replace(tmp, path)
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                raise with_path(exc, path, replace_temp=tmp) from None
             if path.parent not in dirs:
                 dirs.append(path.parent)
         self._pending = []
@@ -444,6 +465,7 @@ class AtomicBatch:
             with contextlib.suppress(OSError):
                 tmp.unlink()
         self._pending = []
+        self._stats = []
 
     def __enter__(self) -> "AtomicBatch":
         return self
@@ -459,24 +481,6 @@ class AtomicBatch:
             self.discard()
 
 
-def sync_filesystem(path) -> None:
-    """Flush every dirty file of the filesystem holding ``path`` (Linux ``syncfs``; ``os.sync``
-    elsewhere): one journal commit for a whole chunk of windows instead of one fsync per file."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            if libc.syncfs(fd) == 0:
-                return
-        finally:
-            os.close(fd)
-    except (OSError, AttributeError):
-        pass
-    os.sync()
-
-
 def durability_mode(durable) -> str:
     """``True``/"batch" -> "batch", "file" -> "file", ``False``/"none" -> "none"."""
     if durable is True or durable == "batch":
@@ -488,8 +492,9 @@ def durability_mode(durable) -> str:
     raise ExportError(f"durable: expected True, False, 'batch', 'file' or 'none', got {durable!r}")
 
 
-def write_atomic(path, data: bytes, durable: bool = True) -> Path:
-    with AtomicBatch(durable) as b:
+def write_atomic(path, data: bytes, durable: bool = True, log: OwnedLog | None = None) -> Path:
+    """One file through :class:`AtomicBatch` (logged in ``log`` before it appears)."""
+    with AtomicBatch(durable, log) as b:
         b.add(path, data)
     return Path(path)
 
@@ -539,12 +544,20 @@ def savemat_bytes(fields: dict) -> bytes:
 # ------------------------------------------------------------------------------------------- journal
 class Journal:
     """Append-only JSON-lines record of the windows whose outputs are complete (parent process only).
-    A line is valid JSON or it is ignored (a crash may cut the last line)."""
+    A line is valid JSON or it is ignored (a crash or a full disk may cut the last line; the next
+    append starts on a fresh line).
+
+    :meth:`append` only buffers in memory: nothing reaches the file before :meth:`sync`, which the
+    caller runs after making the files the lines name durable (``syncfs``), then writes the lines
+    and fsyncs them. So a journaled window is on disk even when the journal is written before its
+    files could be (a buffered file object would write its buffer whenever it fills).
+    """
 
     def __init__(self, path: Path, durable: bool = True):
         self.path = Path(path)
         self.durable = durable
-        self._f = None
+        self._fd: int | None = None
+        self._buf = bytearray()
         self._since_sync = 0
 
     def load(self) -> dict[int, dict]:
@@ -561,28 +574,54 @@ class Journal:
         return out
 
     def append(self, rec: dict) -> None:
-        if self._f is None:
-            self._f = open(self.path, "ab")
-            if self._f.tell() > 0:     # a cut last line: start on a fresh one
-                with open(self.path, "rb") as r:
-                    r.seek(-1, os.SEEK_END)
-                    if r.read(1) != b"\n":
-                        self._f.write(b"\n")
-        self._f.write(json.dumps(rec, separators=(",", ":")).encode() + b"\n")
+        self._buf += json.dumps(rec, separators=(",", ":")).encode()
+        self._buf += b"\n"
         self._since_sync += 1
 
+    def _open(self) -> int:
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
+        size = os.fstat(fd).st_size
+        if size > 0:
+            with open(self.path, "rb") as r:
+                r.seek(size - 1)
+                if r.read(1) != b"\n":      # a cut last line: start on a fresh one
+                    self._buf[:0] = b"\n"
+        return fd
+
     def sync(self) -> None:
-        if self._f is not None and self._since_sync:
-            self._f.flush()
-            if self.durable:
-                os.fsync(self._f.fileno())
+        """Write the buffered lines and fsync them (``durable``). On an error the lines are dropped
+        (their windows are redone by the next run) and the error names the journal."""
+        if not self._since_sync:
+            return
+        try:
+            if self._fd is None:
+                self._fd = self._open()
+            view = memoryview(bytes(self._buf))
+            self._buf.clear()
             self._since_sync = 0
+            while view:
+                view = view[os.write(self._fd, view):]
+            if self.durable:
+                os.fsync(self._fd)
+        except OSError as exc:
+            self._buf.clear()
+            self._since_sync = 0
+            self._close_fd()
+            raise with_path(exc, self.path) from None
+
+    def _close_fd(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = None
 
     def close(self) -> None:
-        if self._f is not None:
+        try:
             self.sync()
-            self._f.close()
-            self._f = None
+        finally:
+            self._buf.clear()
+            self._since_sync = 0
+            self._close_fd()
 
 
 # ------------------------------------------------------------------------------------------- writers
@@ -684,6 +723,8 @@ class ExportContext:
     n_digits: int
     durable: str = "batch"       # durability mode, see durability_mode()
     extra: dict = field(default_factory=dict)
+    #: the parent's record of the files it writes (core.owned_files); workers keep their own
+    owned: OwnedLog | None = None
 
     @property
     def fsync(self) -> bool:
@@ -709,7 +750,7 @@ class WorkerSpec:
 class WorkerContext:
     """Per-process state: the scene, one Annotator, the writer's buffers, stage timings."""
 
-    def __init__(self, spec: WorkerSpec, scene=None):
+    def __init__(self, spec: WorkerSpec, scene=None, owned: OwnedLog | None = None):
         from ..scene import Scene
 
         if scene is None:
@@ -726,6 +767,8 @@ class WorkerContext:
         self.timings = dict.fromkeys(STAGES, 0.0)
         #: fsync each file before its rename ("file" mode); "batch" syncs the filesystem per chunk
         self.fsync_files = spec.durable == "file"
+        #: every file this process writes is logged here before it appears (core.owned_files)
+        self.owned = owned if owned is not None else OwnedLog(self.out_dir, EXPORT_ROLE, f"export {self.writer.fmt}")
         self.state = self.writer.setup_worker(self)
 
     def run(self, task: WindowTask) -> tuple[dict, object]:
@@ -766,36 +809,80 @@ def _worker_run(tasks: list) -> tuple[list, dict]:
 
 
 # ------------------------------------------------------------------------------------------- runner
-def _prepare_out_dir(out_dir: Path, sha: str, doc: dict, force: bool) -> None:
+EXPORT_ROLE = "export"
+#: Files of ``.evpose`` that belong to an export besides the ownership logs.
+EXPORT_STATE_FILES = (CONFIG_NAME, JOURNAL_NAME)
+
+
+def scene_inputs(scene) -> list[Path]:
+    """Every file an export reads: scene.toml, events (a link and its target), trajectory, meshes,
+    corrections.json. An output folder that holds one of them is never cleared."""
+    m = scene.manifest
+    out = [Path(m.path), Path(m.events_path), Path(m.trajectory_path)]
+    out += [Path(o.mesh) for o in m.objects]
+    cp = getattr(scene, "corrections_path", None)
+    if cp is not None:
+        out.append(Path(cp))
+    return out
+
+
+def _read_config(cfg: Path) -> dict | None:
+    """The earlier export's ``config.json``: None when absent, ``{}`` when unreadable."""
+    if not cfg.is_file():
+        return None
+    try:
+        old = json.loads(cfg.read_text())
+    except (OSError, ValueError):
+        return {}
+    return old if isinstance(old, dict) else {}
+
+
+def _has_results(out_dir: Path) -> bool:
+    """Whether an earlier export left anything worth keeping: a journaled window or a finished export."""
+    return (out_dir / MANIFEST_NAME).exists() or bool(Journal(out_dir / STATE_DIR / JOURNAL_NAME).load())
+
+
+def _prepare_out_dir(out_dir: Path, sha: str, doc: dict, force: bool, inputs=()) -> None:
+    """Make ``out_dir`` ready for an export with fingerprint ``sha`` (the caller holds its lock).
+
+    * empty or new: used;
+    * an earlier export with the same fingerprint: resumed (nothing removed);
+    * otherwise every entry is sorted by :func:`core.owned_files.inventory`: anything evpose did not
+      write (or that changed since) is never removed and refuses the run, naming it; a folder holding
+      an input of this export (the scene) is refused; an earlier export with results (journaled
+      windows or a finished export) is replaced only with ``force``; one without results -- a failed
+      run, or only ``.evpose`` state -- is replaced without ``force``. Only evpose's own files are
+      removed.
+    """
     state = out_dir / STATE_DIR
     cfg = state / CONFIG_NAME
     if out_dir.exists() and not out_dir.is_dir():
         raise ExportError(f"{out_dir}: --out: exists and is not a folder")
     entries = list(out_dir.iterdir()) if out_dir.is_dir() else []
     if entries:
-        old = None
-        if cfg.is_file():
-            try:
-                old = json.loads(cfg.read_text())
-            except (OSError, ValueError):
-                old = {}
-        if old is None:
-            raise ExportError(f"{out_dir}: --out: the folder is not empty and holds no evpose export "
-                              f"({STATE_DIR}/{CONFIG_NAME} missing); choose an empty or new folder "
-                              "(--force only replaces an earlier evpose export)")
-        if old.get("sha256") != sha:
-            if not force:
+        inp = held_input(out_dir, inputs)
+        if inp is not None:
+            raise ExportError(f"{out_dir}: --out: holds {inp}, an input of this export; evpose never clears a "
+                              "folder that holds an input: choose another folder")
+        old = _read_config(cfg)
+        if old is None or old.get("sha256") != sha:
+            inv = inventory(out_dir, EXPORT_ROLE, state_files=EXPORT_STATE_FILES, temps="all")
+            if old is None and not inv.clean:
+                raise ExportError(f"{out_dir}: --out: the folder is not empty and holds no evpose export "
+                                  f"({inv.describe_foreign()}); choose an empty or new folder "
+                                  "(--force only replaces an earlier evpose export)")
+            if old is not None and not force and _has_results(out_dir):
                 diff = _describe_difference(old.get("fingerprint", {}), doc)
+                note = "" if inv.clean else f" (--force would still keep {inv.describe_foreign()}, not evpose's)"
                 raise ExportError(f"{out_dir}: --out: holds an export with a different configuration "
-                                  f"({diff}); use --force to replace it, or another folder")
-            for e in entries:
-                if e.is_dir() and not e.is_symlink():
-                    shutil.rmtree(e)
-                else:
-                    e.unlink()
+                                  f"({diff}); use --force to replace it, or another folder{note}")
+            if not inv.clean:
+                raise ExportError(f"{out_dir}: --out: {in_the_way(inv)}")
+            remove_owned(inv)
     out_dir.mkdir(parents=True, exist_ok=True)
     state.mkdir(exist_ok=True)
-    if not cfg.is_file() or json.loads(cfg.read_text() or "{}").get("sha256") != sha:
+    old = _read_config(cfg)
+    if old is None or old.get("sha256") != sha:
         write_atomic(cfg, json_text({"sha256": sha, "fingerprint": doc}).encode())
 
 
@@ -889,13 +976,14 @@ def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, windo
                              window_events=window_events, label_at=label_at, only_verified=only_verified,
                              margin_m=float(margin_m), include_stale=include_stale)
     sha = fingerprint_sha(doc)
-    _prepare_out_dir(out_dir, sha, doc, force)
+    _prepare_out_dir(out_dir, sha, doc, force, scene_inputs(scene))
     clean_temp_files(out_dir)
 
     n_digits = max(4, len(str(max(len(windows) - 1, 0))))
     journal = Journal(out_dir / STATE_DIR / JOURNAL_NAME, durable != "none")
     ctx = ExportContext(scene, writer, out_dir, names, sel, windows, doc, sha, float(margin_m), label_at,
                         journal, n_digits, durable)
+    ctx.owned = OwnedLog(out_dir, EXPORT_ROLE, f"export {writer.fmt}")
 
     # selection and poses (one vectorised interpolation for all windows)
     if only_verified:
@@ -969,6 +1057,7 @@ def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, windo
         ctx.extra["top_files"] = sorted(set(files[:n_top]) | {MANIFEST_NAME, README_NAME})
         summary.runtime_s = time.perf_counter() - t_start
         _write_manifest(ctx, summary, records, selected, valid, unlabeled, n_labeled)
+        ctx.owned.close()
         if progress is not None:
             progress(1.0, f"{summary.written} written, {summary.skipped_complete} complete, {summary.unlabeled} unlabeled")
     except BaseException:
@@ -978,6 +1067,7 @@ def _run_locked(scene, writer, out_dir, windows, names, sel, *, window_us, windo
             journal.close()
         with contextlib.suppress(Exception):
             writer.abort(ctx)
+        ctx.owned.close()
         clean_temp_files(out_dir)
         raise
     return summary
@@ -999,7 +1089,7 @@ def _count_review_usage(summary, windows, touched, reasons, unlabeled_idx, inclu
 def _run_serial(ctx, spec, tasks, records, summary, report, cancel) -> None:
     if not tasks:
         return
-    wctx = WorkerContext(spec, scene=ctx.scene)
+    wctx = WorkerContext(spec, scene=ctx.scene, owned=ctx.owned)
     for k, task in enumerate(tasks):
         rec, payload = wctx.run(task)
         ctx.writer.accept(ctx, rec, payload)
@@ -1137,4 +1227,4 @@ def _write_manifest(ctx, summary, records, selected, valid, unlabeled, n_labeled
         "run": {"written": summary.written, "skipped_complete": summary.skipped_complete,
                 "runtime_s": summary.runtime_s, "jobs": summary.jobs},
     }
-    write_atomic(ctx.out_dir / MANIFEST_NAME, json_text(doc).encode(), ctx.fsync)
+    write_atomic(ctx.out_dir / MANIFEST_NAME, json_text(doc).encode(), ctx.fsync, ctx.owned)

@@ -130,14 +130,14 @@ class EposeWriter(FormatWriter):
         for n in ctx.names:
             c = scene.model(n).bbox_corners(ctx.margin_m)[EPOSE_CORNER_ORDER]     # (8, 3)
             text = "".join(" ".join(f"{v:.6f}" for v in row) + "\n" for row in c.T)
-            write_atomic(ctx.out_dir / f"{n}_box.txt", text.encode(), ctx.fsync)
-        write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync)
+            write_atomic(ctx.out_dir / f"{n}_box.txt", text.encode(), ctx.fsync, ctx.owned)
+        write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync, ctx.owned)
 
     def finish(self, ctx, records) -> list[str]:
         k = len(ctx.names)
         written = sorted(i for i, r in records.items() if r.get("status") == "written")
         paths = "".join(f"{window_stem(i, ctx.n_digits)}_three_channel_image.png\n" for i in written)
-        write_atomic(ctx.out_dir / "three_channel_image_paths.txt", paths.encode(), ctx.fsync)
+        write_atomic(ctx.out_dir / "three_channel_image_paths.txt", paths.encode(), ctx.fsync, ctx.owned)
         files = [f"{n}_box.txt" for n in ctx.names] + ["three_channel_image_paths.txt", "README.txt"]
         per = [f for i in written for f in self.window_files(i, ctx.n_digits, k)]
         ctx.extra["n_window_files"] = len(per)
@@ -254,7 +254,7 @@ class EposeWriter(FormatWriter):
         }
         mat = savemat_bytes(fields)
         t2 = time.perf_counter()
-        with AtomicBatch(wctx.fsync_files) as batch:
+        with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
             for name, data in blobs:
                 batch.add(wctx.out_dir / name, data)
             batch.add(wctx.out_dir / f"{stem}_data.mat", mat)           # last: marks the window complete

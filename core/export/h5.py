@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..annotate import Request
-from ..fileio import fsync_dir
+from ..fileio import ensure_free_space, fsync_dir, os_error_from_hdf5
 from ..represent import polarity_counts, three_channel, three_channel_rgb
 from .common import ExportError, FormatWriter, evpose_version, write_atomic
 
@@ -49,6 +49,65 @@ COUNTS_MAX = np.iinfo(np.uint16).max
 _WINDOW_DTYPE = np.dtype([("index", "<i8"), ("t0_us", "<i8"), ("t1_us", "<i8"), ("t_label_us", "<i8"),
                           ("i0", "<i8"), ("i1", "<i8"), ("n_events", "<i8"), ("valid", "?")])
 _BLOCK = 32        # rows buffered before one write per dataset
+#: Free space kept beyond the estimate of each write (HDF5 metadata, closing the file).
+_MARGIN_BYTES = 1 << 20
+
+
+def _h5_failure(exc: BaseException, path: Path) -> BaseException:
+    """An HDF5 failure while writing ``path`` (discarded by then): ``OSError`` naming it when the
+    system refused the write (full disk...), else :class:`ExportError`; other exceptions unchanged."""
+    err = os_error_from_hdf5(exc, path)
+    if isinstance(err, OSError) and err.errno is not None:
+        return err
+    if isinstance(err, (OSError, RuntimeError, ValueError, KeyError)):
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        return ExportError(f"{path}: HDF5 could not write the file ({first}); it was removed: rerun the same "
+                           "command to start it over")
+    return err
+
+
+def _superblock_eoa(path: Path) -> int | None:
+    """The end-of-allocation address stored in an HDF5 superblock (versions 0-3, at offset 0), or None."""
+    import struct
+
+    with open(path, "rb") as fh:
+        head = fh.read(56)
+    if len(head) < 36 or head[:8] != b"\x89HDF\r\n\x1a\n":
+        return None
+    version = head[8]
+    off = {0: 40, 1: 48, 2: 28, 3: 28}.get(version)
+    if off is None or len(head) < off + 8:
+        return None
+    return struct.unpack_from("<Q", head, off)[0]
+
+
+def _within_end_of_allocation(f, path: Path) -> bool:
+    """A partial file left by a killed or failed run is sound to resume when HDF5 can walk all of its
+    objects and every data chunk lies below the end of allocation its superblock records. (HDF5 can
+    evict metadata that points past the recorded end before a crash; resuming such a file fails later
+    with ``addr overflow``.) Reads only the chunk index, not the data."""
+    import h5py
+
+    eoa = _superblock_eoa(path)
+    if eoa is None:
+        return False
+    end = 0
+
+    def visit(_name, obj):
+        nonlocal end
+        if isinstance(obj, h5py.Dataset) and obj.chunks is not None:
+            def info(ci):
+                nonlocal end
+                end = max(end, ci.byte_offset + ci.size)
+
+            if hasattr(obj.id, "chunk_iter"):
+                obj.id.chunk_iter(info)
+            else:  # pragma: no cover - older HDF5
+                for i in range(obj.id.get_num_chunks()):
+                    info(obj.id.get_chunk_info(i))
+
+    f.visititems(visit)
+    return end <= eoa
 
 
 def _safe_name(name: str) -> str:
@@ -93,7 +152,7 @@ class H5Writer(FormatWriter):
         final, part = self.paths(ctx)
         ctx.extra["h5"] = None
         ctx.extra["h5_buffer"] = {}
-        write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync)
+        write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync, ctx.owned)
         if final.exists():
             try:
                 with h5py.File(final, "r") as f:
@@ -107,17 +166,76 @@ class H5Writer(FormatWriter):
         f = None
         if part.exists():
             try:
-                f = h5py.File(part, "r+")
-                if f.attrs.get("config_sha256") != ctx.sha or "_done" not in f:
+                f = h5py.File(part, "r+", rdcc_nbytes=0)
+                if (f.attrs.get("config_sha256") != ctx.sha or not self._layout_ok(ctx, f)
+                        or not _within_end_of_allocation(f, part)):
                     f.close()
                     f = None
-            except OSError:        # a crash left it unreadable: start over
+            except Exception:      # a crash left it unreadable: start over  # noqa: BLE001
+                if f is not None:
+                    ctx.extra["h5"] = f
+                    self._discard(ctx)
                 f = None
             if f is None:
-                part.unlink()
+                part.unlink(missing_ok=True)
         if f is None:
-            f = self._create(ctx, part)
+            ensure_free_space(part, _MARGIN_BYTES + len(ctx.extra["selected"]) * _WINDOW_DTYPE.itemsize,
+                              "a new HDF5 file")
+            ctx.owned.partial(part)          # logged before it exists (core.owned_files)
+            try:
+                f = self._create(ctx, part)
+            except Exception as exc:
+                self._discard(ctx)
+                raise _h5_failure(exc, part) from None
         ctx.extra["h5"] = f
+        ctx.extra["h5_layout"] = self._layout(f)
+
+    def _layout_ok(self, ctx, f) -> bool:
+        """The partial file has every dataset, each with one row per selected window."""
+        n = len(ctx.extra["selected"])
+        names = ["windows", "_done", "T_cam_obj", "label_map", "frames/counts"]
+        if self.three_channel:
+            names.append("frames/three_channel")
+        return all(k in f and f[k].shape[:1] == (n,) for k in names) and f["_done"][:].shape == (n,)
+
+    @staticmethod
+    def _layout(f) -> dict:
+        """Per-row dataset: (rows per chunk, bytes per row before compression), for the free-space check."""
+        out = {}
+
+        def visit(name, obj):
+            import h5py
+
+            if isinstance(obj, h5py.Dataset) and name != "windows" and obj.ndim >= 1 and obj.chunks is not None:
+                out[name] = (int(obj.chunks[0]), int(np.prod(obj.shape[1:], dtype=np.int64)) * obj.dtype.itemsize)
+
+        f.visititems(visit)
+        return out
+
+    def _need_bytes(self, ctx, runs) -> int:
+        """An upper bound of the bytes writing rows ``runs`` (list of [a, b)) adds to the file: every chunk
+        the rows touch, uncompressed, plus a margin."""
+        need = _MARGIN_BYTES
+        for chunk_rows, row_bytes in ctx.extra.get("h5_layout", {}).values():
+            for a, b in runs:
+                need += ((b - 1) // chunk_rows - a // chunk_rows + 1) * chunk_rows * row_bytes
+        return need
+
+    def _discard(self, ctx) -> None:
+        """Throw the partial file away after a failed HDF5 write (a full disk): truncated first, so that
+        HDF5 can close it (its close writes metadata; a file it cannot close crashes the interpreter at
+        exit), then removed. The rerun starts it over."""
+        _, part = self.paths(ctx)
+        f = ctx.extra.get("h5")
+        ctx.extra["h5"] = None
+        ctx.extra["h5_buffer"] = {}
+        with contextlib.suppress(OSError):
+            os.truncate(part, 0)
+        if f is not None:
+            with contextlib.suppress(Exception):
+                f.close()
+        with contextlib.suppress(OSError):
+            part.unlink()
 
     def _create(self, ctx, part: Path):
         import h5py
@@ -126,7 +244,9 @@ class H5Writer(FormatWriter):
         cam = scene.camera
         sel = ctx.extra["selected"]
         N, K, H, W = len(sel), len(ctx.names), cam.height, cam.width
-        f = h5py.File(part, "w", track_order=False)
+        # no chunk cache: a write reaches the file at once, so a full disk fails that write or the flush after it
+        # (an evicted chunk's failure would surface only at close, when HDF5 could no longer close the file)
+        f = h5py.File(part, "w", track_order=False, rdcc_nbytes=0)
         rows = max(1, min(N, 1024))
         small = dict(chunks=True) if N else {}
 
@@ -215,14 +335,22 @@ class H5Writer(FormatWriter):
                 runs.append(rows[start:j])
                 start = j
         keys = [k for k in buf[rows[0]] if k != "row"]
-        for run in runs:
-            a, b = run[0], run[-1] + 1
-            for k in keys:
-                f[k][a:b] = np.stack([buf[r][k] for r in run])
-        for run in runs:        # flags last: a row is complete only after its data
-            f["_done"][run[0]:run[-1] + 1] = 1
-        buf.clear()
-        f.flush()
+        _, part = self.paths(ctx)
+        # a full disk must stop us here, before HDF5 runs into it: the file stays whole and resumable
+        ensure_free_space(part, self._need_bytes(ctx, [(run[0], run[-1] + 1) for run in runs]),
+                          f"{len(rows)} windows")
+        try:
+            for run in runs:
+                a, b = run[0], run[-1] + 1
+                for k in keys:
+                    f[k][a:b] = np.stack([buf[r][k] for r in run])
+            for run in runs:        # flags last: a row is complete only after its data
+                f["_done"][run[0]:run[-1] + 1] = 1
+            buf.clear()
+            f.flush()
+        except Exception as exc:     # the file can no longer be trusted
+            self._discard(ctx)
+            raise _h5_failure(exc, part) from None
         ctx.extra["parent_write_s"] = ctx.extra.get("parent_write_s", 0.0) + time.perf_counter() - t_start
 
     def flush(self, ctx) -> None:
@@ -236,13 +364,19 @@ class H5Writer(FormatWriter):
         f = ctx.extra.get("h5")
         if f is not None:
             self._write_buffer(ctx)
-            done = f["_done"][:]
-            f.close()
+            try:
+                done = f["_done"][:]
+                f.close()
+            except Exception as exc:
+                self._discard(ctx)
+                raise _h5_failure(exc, part) from None
             ctx.extra["h5"] = None
             if not done.all():      # pragma: no cover - every selected window goes through process()
                 raise ExportError(f"{part}: {int((done == 0).sum())} rows were not written")
             if ctx.durable != "none":
                 fsync_dir(part)
+            st = os.stat(part)               # the final name is logged before it appears (same size, mtime)
+            ctx.owned.files([(final, st.st_size, st.st_mtime_ns)])
             os.replace(part, final)
             if ctx.durable != "none":
                 fsync_dir(final.parent)
@@ -252,9 +386,13 @@ class H5Writer(FormatWriter):
         f = ctx.extra.get("h5")
         if f is not None:
             with contextlib.suppress(Exception):
-                self._write_buffer(ctx)
-            with contextlib.suppress(Exception):
-                f.close()
+                self._write_buffer(ctx)      # a full disk: refused before writing, the file stays resumable
+            f = ctx.extra.get("h5")
+            if f is not None:
+                try:
+                    f.close()
+                except Exception:  # noqa: BLE001 - it cannot be closed: it cannot be trusted either
+                    self._discard(ctx)
             ctx.extra["h5"] = None
 
     # ------------------------------------------------------------------ worker

@@ -133,8 +133,8 @@ def test_cancel_resume_identical_no_temp(small_scene, tmp_path):
     assert no_temp_files(out) and not (out / "export_manifest.json").exists()
     assert len(list(out.glob("*_data.mat"))) == 5
     all_files_complete(out)
-    # a stray temp file of a killed writer is removed on start
-    (out / ".0025_event_image.png.x1y2.tmp").write_bytes(b"partial")
+    # a stray temp file of a killed writer (evpose's naming: .<name>.<pid>-<n>.tmp) is removed on start
+    (out / ".0025_event_image.png.4194305-2.tmp").write_bytes(b"partial")
     s = export_scene(small_scene, "epose", out, only_verified=True)
     assert s.skipped_complete == 5 and s.written == 7
     assert no_temp_files(out)
