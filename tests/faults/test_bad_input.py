@@ -24,7 +24,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import assert_clean_error, assert_ok, run_cli, snapshot
+from fault_harness import assert_clean_error, assert_ok, run_cli, snapshot
 
 TIMEOUT = 60          # every case answers in 1-3 s; a hang fails the case instead of blocking the suite
 ONE_GIB = 2**30

@@ -28,16 +28,10 @@ from core.scene import Scene
 
 
 def _harness():
-    """The fault harness (tests/faults/conftest.py) by path: ``conftest`` names several modules."""
-    import importlib.util
+    """The fault harness module (:mod:`fault_harness`)."""
+    import fault_harness
 
-    spec = importlib.util.spec_from_file_location("evpose_faults_harness", Path(__file__).with_name("conftest.py"))
-    mod = sys.modules.get(spec.name)
-    if mod is None:
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = mod           # dataclasses look their module up while defining
-        spec.loader.exec_module(mod)
-    return mod
+    return fault_harness
 
 
 _h = _harness()

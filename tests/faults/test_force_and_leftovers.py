@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import EVPOSE, assert_clean_error, assert_ok, run_cli, snapshot
+from fault_harness import EVPOSE, assert_clean_error, assert_ok, run_cli, snapshot
 
 # ------------------------------------------------------------------------------------------- sources
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import assert_clean_error, assert_ok, run_cli, snapshot
+from fault_harness import assert_clean_error, assert_ok, run_cli, snapshot
 
 MB = 1 << 20
 
@@ -121,7 +121,7 @@ def run_without_precheck(*args, timeout=120):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     p = subprocess.run([sys.executable, "-c", _NO_PRECHECK, *map(str, args)], capture_output=True, text=True,
                        timeout=timeout, env=env)
-    from conftest import Run
+    from fault_harness import Run
 
     return Run(args, p.returncode, p.stdout, p.stderr)
 

@@ -23,7 +23,7 @@ from core.annotate import time_windows
 from core.scene import Scene, SceneError, load_manifest
 from core.trajectory import MAX_GAP_STEPS, Trajectory, default_max_gap_us
 
-from conftest import assert_ok, run_cli, snapshot
+from fault_harness import assert_ok, run_cli, snapshot
 
 HOLE_US = 200_000
 
