@@ -251,7 +251,6 @@ def compare_compute(session, positions) -> dict:
 
 # ------------------------------------------------------------------------------------------------ part 2
 def measure_spacetime(qapp, window, n_events: int, repeats: int) -> dict:
-    import numpy as np
 
     from core.session import FrameComputer
 

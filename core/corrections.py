@@ -26,7 +26,6 @@ Object names the scene does not have are kept in the file (and written back) but
 """
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from dataclasses import dataclass, field

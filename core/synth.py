@@ -29,7 +29,7 @@ from .camera import CameraModel
 from .events import Cancelled, EventArray, EventWriter
 from .fileio import with_path
 from .evsim import EventSimulator, SensorParams
-from .geometry import T_from_rotvec, apply_T, inv_T, make_T
+from .geometry import apply_T, inv_T, make_T
 from .objects import ObjectModel, box_model, cylinder_model
 from .raster import Rasterizer
 from .scene import SCENE_FILENAME, ObjectSpec, SceneManifest

@@ -25,6 +25,26 @@ ASSETS = Path(os.environ.get("EVPOSE_ASSETS", REPO.parent / "shared" / "assets" 
 MODELS = ASSETS / "models"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_user_cache(tmp_path_factory):
+    """Tests (and the evpose processes they start) never write into the user's cache dir."""
+    old = os.environ.get("XDG_CACHE_HOME")
+    os.environ["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg-cache"))
+    yield
+    if old is None:
+        os.environ.pop("XDG_CACHE_HOME", None)
+    else:
+        os.environ["XDG_CACHE_HOME"] = old
+
+
+@pytest.fixture
+def private_cache(tmp_path_factory, monkeypatch):
+    """A fresh cache dir for one test; returns the folder of the event-index cache."""
+    xdg = tmp_path_factory.mktemp("xdg-cache")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(xdg))
+    return xdg / "evpose" / "msidx"
+
+
 @pytest.fixture
 def assets_dir() -> Path:
     if not (ASSETS / "camera_davis346.json").is_file():

@@ -18,3 +18,13 @@ def half_davis_camera() -> dict:
 #: The shared synthetic scene: 3 objects, trajectory B at 0.5 m/s, clock offset and pose error injected.
 TINY_SCENE = dict(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5, duration_s=0.8,
                   offset_us=20_000, skew_ppm=0.0, pose_error_mm=5.0, pose_error_deg=3.0, seed=3)
+
+
+def msidx_cache_file(path):
+    """Where EventStore caches the index and validation of an event file (the user cache dir)."""
+    import hashlib
+    from pathlib import Path
+
+    import core.events as ce
+
+    return ce.default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"

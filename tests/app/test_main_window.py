@@ -3,7 +3,6 @@ overlay move onto the events, undo/redo, save, reopen, export."""
 import json
 
 import numpy as np
-import pytest
 from PySide6 import QtCore, QtWidgets
 
 from core.synth import load_ground_truth

@@ -1,7 +1,6 @@
 """Review marks in the app (issue 11 item 8): Home / End / a timeline click mark grid windows, a
 second mark over a window replaces the first, stale marks are shown as stale in the review panel and
 the timeline, and the export's done message counts the marked windows it could not use."""
-import pytest
 from PySide6 import QtCore
 
 from app.controller import export_done_text

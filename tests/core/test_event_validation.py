@@ -6,7 +6,6 @@ Documented choice: refuse (nothing is silently dropped; ``evpose import ... --re
 """
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 from pathlib import Path
@@ -14,6 +13,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from evpose_testing import msidx_cache_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -23,15 +23,8 @@ from core.events import EventFileError, EventStore
 W, H = 346, 260
 
 
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path_factory, monkeypatch):
-    xdg = tmp_path_factory.mktemp("xdg")
-    monkeypatch.setenv("XDG_CACHE_HOME", str(xdg))
-    return xdg / "evpose" / "msidx"
-
-
-def cache_file(path) -> Path:
-    return ce.default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"
+pytestmark = pytest.mark.usefixtures("private_cache")
+cache_file = msidx_cache_file
 
 
 def events(n=5000, seed=0, t0=10**12):

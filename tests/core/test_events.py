@@ -9,6 +9,7 @@ from unittest import mock
 import h5py
 import numpy as np
 import pytest
+from evpose_testing import msidx_cache_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -17,17 +18,8 @@ from core.events import (Cancelled, EventArray, EventFileError, EventStore, Even
                          write_events_h5)
 
 
-# ----------------------------------------------------------------------------------------------- helpers
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path_factory, monkeypatch):
-    """Each test caches indices in its own XDG cache dir (never the user's, never beside the file)."""
-    xdg = tmp_path_factory.mktemp("xdg-cache")
-    monkeypatch.setenv("XDG_CACHE_HOME", str(xdg))
-    return xdg / "evpose" / "msidx"
-
-
-def cache_file(path) -> Path:
-    return ce.default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"
+pytestmark = pytest.mark.usefixtures("private_cache")
+cache_file = msidx_cache_file
 
 
 def make_events(t, seed=0):

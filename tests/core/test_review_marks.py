@@ -2,7 +2,6 @@
 stale marks after a clock or pose change, and what an only-verified export does with marked windows."""
 import json
 
-import numpy as np
 import pytest
 
 from core.annotate import Window

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 import tomli_w
 
-from core.corrections import Corrections
 from core.events import EventArray, write_events_h5
 from core.geometry import T_from_rotvec, apply_T, inv_T
 from core.history import History

@@ -21,7 +21,6 @@ import pytest
 
 from core.corrections import Corrections, CorrectionsWarning
 from core.corrections_file import LOCK_TIMEOUT_S, locked
-from core.corrections_merge import CorrectionsConflict
 from core.geometry import T_from_rotvec
 from core.scene import Scene
 

@@ -1,4 +1,3 @@
-import pytest
 from PySide6 import QtCore
 
 from widgets.object_list import ObjectList
