@@ -1,7 +1,7 @@
 """Automatic estimates in the app: clock sync, pose refinement and sequence-wide scores.
 
 Each runs the core function (:mod:`core.sync`, :mod:`core.refine`, :mod:`core.score`) on a
-snapshot of the scene in a :class:`~app.workers.Job` (the window stays responsive, a progress
+snapshot of the scene in a :class:`~evpose.app.workers.Job` (the window stays responsive, a progress
 dialog can cancel), then shows the proposal with how sure it is; accepting applies it through
 the History as **one** undo step. Nothing is applied without the user's accept.
 """
@@ -11,9 +11,9 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
-from core.sync import SLOW_STD_NOTE_US
+from evpose.core.align.sync import SLOW_STD_NOTE_US
 
-from .workers import Job, progress_dialog
+from evpose.app.workers import Job, progress_dialog
 
 
 def _fmt_ms(us) -> str:
@@ -188,7 +188,7 @@ class RefineDialog(QtWidgets.QDialog):
 
 
 class AlignController(QtCore.QObject):
-    """Runs sync / refine / score jobs for a :class:`~app.main_window.MainWindow`.
+    """Runs sync / refine / score jobs for a :class:`~evpose.app.main_window.MainWindow`.
 
     In tests and screenshot runs (``window.modal_dialogs`` False) the proposal dialogs do not
     block: ``window.auto_answer["sync"]`` / ``["edge_sync"]`` / ``["refine"]`` (default True)
@@ -246,14 +246,14 @@ class AlignController(QtCore.QObject):
 
     # ------------------------------------------------------------------ clock sync
     def auto_sync(self) -> Job | None:
-        from core.sync import sync_scene
+        from evpose.core.align.sync import sync_scene
 
         return self._run("Automatic clock sync",
                          lambda scene, progress, cancel: sync_scene(scene, progress=progress, cancel=cancel),
                          self._sync_done)
 
     def _sync_done(self, session, result) -> None:
-        from core.sync import apply_sync
+        from evpose.core.align.sync import apply_sync
 
         self.last_sync = result
         clock = session.scene.clock
@@ -277,9 +277,9 @@ class AlignController(QtCore.QObject):
     def refine_clock(self) -> Job | None:
         """Offset (and skew) from event/edge alignment. Right after an accepted automatic sync
         (the clock in effect is its estimate) it searches within 3 of that estimate's standard
-        errors (:func:`core.refine.refine_offset_from_sync`); otherwise ±3 ms around the clock in
+        errors (:func:`evpose.core.align.refine.refine_offset_from_sync`); otherwise ±3 ms around the clock in
         effect."""
-        from core.refine import refine_offset, refine_offset_from_sync
+        from evpose.core.align.refine import refine_offset, refine_offset_from_sync
 
         session = self.window.session
         if session is None:
@@ -300,7 +300,7 @@ class AlignController(QtCore.QObject):
         return self._run("Clock from edges", fn, self._clock_done)
 
     def _clock_done(self, session, result) -> None:
-        from core.refine import apply_offset_result
+        from evpose.core.align.refine import apply_offset_result
 
         self.last_clock_refine = result
         clock = session.scene.clock
@@ -313,7 +313,7 @@ class AlignController(QtCore.QObject):
 
     # ------------------------------------------------------------------ pose refinement
     def refine(self, name: str) -> Job | None:
-        from core.refine import refine_object
+        from evpose.core.align.refine import refine_object
 
         session = self.window.session
         if session is None or name not in session.object_names:
@@ -334,7 +334,7 @@ class AlignController(QtCore.QObject):
 
     # ------------------------------------------------------------------ scores over the sequence
     def score_all(self) -> Job | None:
-        from core.score import score_windows
+        from evpose.core.align.score import score_windows
 
         session = self.window.session
         if session is None:

@@ -17,16 +17,16 @@ from pathlib import Path
 
 from PySide6 import QtCore, QtWidgets
 
-from core.cli import _input_errors
-from core.corrections import CorrectionsError, CorrectionsWarning
-from core.corrections_merge import CorrectionsConflict
-from core.session import Session
+from evpose.app.cli.main import _input_errors
+from evpose.core.document.corrections import CorrectionsError, CorrectionsWarning
+from evpose.core.document.corrections_merge import CorrectionsConflict
+from evpose.core.session import Session
 
-from .workers import Job, progress_dialog
+from evpose.app.workers import Job, progress_dialog
 
 
 class ExportDialog(QtWidgets.QDialog):
-    """Format, output folder and window options for ``core.export.export_scene``."""
+    """Format, output folder and window options for ``evpose.core.export.export_scene``."""
 
     def __init__(self, parent, scene_name: str, last_dir: str = ""):
         super().__init__(parent)
@@ -82,7 +82,7 @@ class ExportDialog(QtWidgets.QDialog):
 
 
 class Controller(QtCore.QObject):
-    """Opens, saves and exports for a :class:`~app.main_window.MainWindow`."""
+    """Opens, saves and exports for a :class:`~evpose.app.main_window.MainWindow`."""
 
     def __init__(self, window):
         super().__init__(window)
@@ -300,7 +300,7 @@ class Controller(QtCore.QObject):
 
     def start_export(self, **opts) -> Job:
         """Export the scene with the corrections as they are now (saved or not) in a worker."""
-        from core.export import export_scene
+        from evpose.core.export import export_scene
 
         s = self.window.session
         snapshot = s.scene.with_corrections(s.scene.corrections.copy())

@@ -45,7 +45,7 @@ def _one_line(message: str) -> str:
 def _load_for_unattended(session) -> str | None:
     """Load every mesh now (an unattended run has no dialog to show a late error in); returns the
     error line or None."""
-    from core.cli import _input_errors
+    from evpose.app.cli.main import _input_errors
 
     try:
         for name in session.scene.object_names:
@@ -66,8 +66,8 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     """
     from PySide6 import QtCore, QtGui, QtWidgets
 
-    from .main_window import MainWindow
-    from .qt_compat import guard_pyside_refcount_leak
+    from evpose.app.main_window import MainWindow
+    from evpose.app.qt_compat import guard_pyside_refcount_leak
 
     guard_pyside_refcount_leak()
 

@@ -6,20 +6,20 @@ from pathlib import Path
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from core.session import REPRESENTATION_NAMES, FrameComputer, FrameData, Session, SpaceTimeData
-from widgets.correction_panel import CorrectionPanel
-from widgets.frame_view import FrameView
-from widgets.help_overlay import HelpOverlay
-from widgets.object_list import ObjectList
-from widgets.review_panel import ReviewPanel
+from evpose.core.session import REPRESENTATION_NAMES, FrameComputer, FrameData, Session, SpaceTimeData
+from evpose.widgets.correction_panel import CorrectionPanel
+from evpose.widgets.frame_view import FrameView
+from evpose.widgets.help_overlay import HelpOverlay
+from evpose.widgets.object_list import ObjectList
+from evpose.widgets.review_panel import ReviewPanel
 
-from . import actions as A
-from .align import AlignController
-from .controller import Controller
-from .disk_watch import CorrectionsWatcher
-from .settings import Settings
-from .undo_bridge import UndoBridge
-from .workers import LatestWorker
+from evpose.app import actions as A
+from evpose.app.align import AlignController
+from evpose.app.controller import Controller
+from evpose.app.disk_watch import CorrectionsWatcher
+from evpose.app.settings import Settings
+from evpose.app.undo_bridge import UndoBridge
+from evpose.app.workers import LatestWorker
 
 AUTOSAVE_MS = 20_000
 SPACETIME_DEBOUNCE_MS = 250   # the space-time view follows once scrubbing pauses: it must not slow the frame
@@ -206,8 +206,8 @@ class MainWindow(QtWidgets.QMainWindow):
         """Show ``session`` (replacing any open one)."""
         self._teardown_session()
         self.session = session
-        from widgets.spacetime_view import SpaceTimeView
-        from widgets.timeline import Timeline
+        from evpose.widgets.spacetime_view import SpaceTimeView
+        from evpose.widgets.timeline import Timeline
 
         self.frame_view = FrameView(session)
         self.frame_view.hoverText.connect(lambda t: t and self.statusBar().showMessage(t, 2000))

@@ -1,9 +1,9 @@
-"""Mirror the core :class:`~core.history.History` onto Qt actions and the window-modified flag."""
+"""Mirror the core :class:`~evpose.core.document.history.History` onto Qt actions and the window-modified flag."""
 from __future__ import annotations
 
 from PySide6 import QtGui, QtWidgets
 
-from core.history import History
+from evpose.core.document.history import History
 
 
 class UndoBridge:

@@ -72,7 +72,7 @@ class Job(QtCore.QRunnable):
     """Run ``fn(progress=..., cancel=...)`` in the thread pool; ``cancel()`` asks it to stop.
 
     ``fn`` is a core function taking ``progress(fraction, message)`` and ``cancel() -> bool``
-    callbacks; cancellation surfaces as ``core.events.Cancelled`` and is reported as failure
+    callbacks; cancellation surfaces as ``evpose.core.data.events.Cancelled`` and is reported as failure
     with the message "cancelled".
     """
 
@@ -91,7 +91,7 @@ class Job(QtCore.QRunnable):
         return self._cancel.is_set()
 
     def run(self) -> None:
-        from core.events import Cancelled
+        from evpose.core.data.events import Cancelled
 
         try:
             result = self.fn(progress=lambda f, m="": self.signals.progress.emit(float(f), str(m)),

@@ -22,7 +22,7 @@ Sections
    8 s scenes at the full 346x260 resolution; and how well the reported standard error
    (``SyncResult.offset_std_us``) describes the actual errors. Then the second stage on all of
    these scenes: the offset and skew from event/edge alignment
-   (:func:`core.refine.refine_offset_from_sync`, ``evpose sync --edges``) with 12 and 24 windows.
+   (:func:`evpose.core.align.refine.refine_offset_from_sync`, ``evpose sync --edges``) with 12 and 24 windows.
 2. **Skew** on 20 s sequences: rate-level scenes (events drawn with a rate proportional to the
    camera's image speed, ~330 k ev/s) with skews up to ±1000 ppm at 4 / 8 / 16 segments, and
    rendered 20 s scenes with -150 / +200 ppm.
@@ -33,7 +33,7 @@ Sections
 5. **Refinement** of 5 mm / 3 degree pose errors on half-resolution scenes (173x130, built-in
    boxes and, when ``../shared/assets/epose/models`` exists, the sugar / cracker box meshes),
    against the number of windows and per iteration, with run times; and the clock offset from
-   edges (:func:`core.refine.refine_offset`).
+   edges (:func:`evpose.core.align.refine.refine_offset`).
 """
 from __future__ import annotations
 
@@ -51,12 +51,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from core.camera import CameraModel  # noqa: E402
-from core.corrections import Corrections  # noqa: E402
-from core.geometry import inv_T, pose_error  # noqa: E402
-from core.scene import Scene  # noqa: E402
-from core.synth import SynthConfig, generate, load_ground_truth  # noqa: E402
-from core.trajectory import ClockModel, Trajectory  # noqa: E402
+from evpose.core.data.camera import CameraModel  # noqa: E402
+from evpose.core.document.corrections import Corrections  # noqa: E402
+from evpose.core.data.geometry import inv_T, pose_error  # noqa: E402
+from evpose.core.data.scene import Scene  # noqa: E402
+from evpose.core.sim.synth import SynthConfig, generate, load_ground_truth  # noqa: E402
+from evpose.core.data.trajectory import ClockModel, Trajectory  # noqa: E402
 
 DATA = REPO / "bench" / ".data" / "accuracy"
 OUT = REPO / "bench" / "out"
@@ -133,8 +133,8 @@ def rate_level_scene(folder: Path, duration_s, offset_us, skew_ppm, seed, *, per
     """Events with a rate proportional to the camera's image speed (no rendering)."""
     from scipy.spatial.transform import Rotation
 
-    from core.events import EventArray, write_events_h5
-    from core.scene import SceneManifest
+    from evpose.core.data.events import EventArray, write_events_h5
+    from evpose.core.data.scene import SceneManifest
 
     if (folder / "scene.toml").is_file():
         return folder
@@ -232,9 +232,9 @@ def _event_times(scene) -> np.ndarray:
 
 
 def rebinned_sync(scene, phase_us, bin_us=1000, **kw):
-    """:func:`core.sync.estimate_clock` on the scene's events binned from ``phase_us`` after the
+    """:func:`evpose.core.align.sync.estimate_clock` on the scene's events binned from ``phase_us`` after the
     first event (``EventStore.rate`` bins start at the first event)."""
-    from core import sync
+    from evpose.core.align import sync
 
     t = _event_times(scene)
     edges = np.arange(t[0] + phase_us - bin_us, t[-1] + bin_us, bin_us, dtype=np.int64)
@@ -243,7 +243,7 @@ def rebinned_sync(scene, phase_us, bin_us=1000, **kw):
 
 
 def bench_sync(scenes: dict, speeds, seeds):
-    from core import sync
+    from evpose.core.align import sync
 
     variants = [("ours 1 ms (default: Poisson ML)", dict(bin_us=1000)),
                 ("ours 1 ms NCC refine", dict(bin_us=1000, refine="ncc")),
@@ -304,7 +304,7 @@ def bench_sync(scenes: dict, speeds, seeds):
 def bench_slow(scenes: dict, names: list):
     """Offset error at 0.1 m/s against sequence length: the estimate rests on where motion
     starts and stops, and a slow 8 s sequence holds only ~3 gradual moves."""
-    from core import sync
+    from evpose.core.align import sync
 
     by_len: dict = {}
     for n in names:
@@ -377,9 +377,9 @@ def _edge_group(name: str) -> str:
 
 def bench_sync_edges(scenes: dict, names: list):
     """The second stage: the offset (and skew) from event/edge alignment
-    (:func:`core.refine.refine_offset_from_sync`) started at the rate estimate (one shifted-bin
+    (:func:`evpose.core.align.refine.refine_offset_from_sync`) started at the rate estimate (one shifted-bin
     run per scene), with the objects at their true poses (the assumption of that stage)."""
-    from core import refine
+    from evpose.core.align import refine
 
     res: dict = {}     # (method, group) -> list of (offset err us, |skew err| ppm or None, sigma us, runtime s)
     for n in names:
@@ -426,7 +426,7 @@ def bench_sync_edges(scenes: dict, names: list):
 
 
 def bench_skew(n_seeds, rendered_skew):
-    from core import sync
+    from evpose.core.align import sync
 
     rows, pts = [], []
     cases = []
@@ -478,7 +478,7 @@ def bench_skew(n_seeds, rendered_skew):
 
 
 def bench_unreliable():
-    from core import sync
+    from evpose.core.align import sync
 
     rows = []
     for name, kw in (("static camera", dict(static=True)), ("periodic motion (period 360 ms)", dict(periodic=True))):
@@ -494,7 +494,7 @@ def bench_unreliable():
 
 # ---------------------------------------------------------------------------- 4. score
 def bench_score(folders):
-    from core import score
+    from evpose.core.align import score
 
     rows = []
     for folder in folders:
@@ -526,7 +526,7 @@ def obj_errors(scene, name, T, gt):
 
 
 def bench_refine(folders, window_counts):
-    from core import refine
+    from evpose.core.align import refine
 
     per_row, traces = {}, []
     for nw in window_counts:
@@ -571,7 +571,7 @@ def bench_refine(folders, window_counts):
 
 
 def bench_offset_refine(folders):
-    from core import refine
+    from evpose.core.align import refine
 
     rows = []
     for folder in folders:

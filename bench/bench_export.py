@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python bench/bench_export.py [--quick] [--durable batch|file|none] [--formats epose,bop,h5]``.
 
-The scene is a synthetic 3-object DAVIS346 sequence (``core.synth.generate``: box, cylinder, flatbox,
+The scene is a synthetic 3-object DAVIS346 sequence (``evpose.core.sim.synth.generate``: box, cylinder, flatbox,
 trajectory B at 0.5 m/s, 2 s, seed 1), generated once into ``bench/.data/synth_3obj_2s``. Every run
 exports all 10 ms windows (``--quick``: the first 0.6 s, through a verified review mark) into a fresh
 folder with the full product set of the format: E-POSE (event, mask_all + 3 object masks, segmented +
@@ -11,7 +11,7 @@ HDF5 (label map, counts, three-channel frames and all label arrays).
 
 Printed: one row per format and job count: windows, wall time, windows/s, the ratio 2 jobs / 1 job,
 the pool start-up time, and the per-window time split in ms (wall time summed over the windows, all processes):
-``events`` (read), ``annotate`` (poses, keypoints, rasterisation: core.annotate / core.raster),
+``events`` (read), ``annotate`` (poses, keypoints, rasterisation: evpose.core.label.annotate / evpose.core.label.raster),
 ``images`` (frames, masks, PNG encoding), ``mat`` (.mat encoding), ``write`` (temp files, renames,
 syncfs per chunk / HDF5 writes). ``excl.ann`` is the windows/s the export would reach per process if
 annotation were free (1000 / sum of the other stages), i.e. the throughput of this module's own work.
@@ -33,7 +33,7 @@ OUT = DATA / "export_out"
 
 
 def ensure_scene() -> Path:
-    from core.synth import SynthConfig, generate
+    from evpose.core.sim.synth import SynthConfig, generate
 
     if (SCENE / "scene.toml").is_file():
         return SCENE
@@ -46,9 +46,9 @@ def ensure_scene() -> Path:
 
 
 def run(fmt: str, jobs: int, quick: bool, durable) -> dict:
-    from core.corrections import ReviewMark
-    from core.export import export_scene
-    from core.scene import Scene
+    from evpose.core.document.corrections import ReviewMark
+    from evpose.core.export import export_scene
+    from evpose.core.data.scene import Scene
 
     out = OUT / f"{fmt}_{jobs}"
     shutil.rmtree(out, ignore_errors=True)

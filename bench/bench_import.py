@@ -68,8 +68,7 @@ def _event_chunks(n_events, width, height, seed, chunk=1_000_000):
 def gen_bag(path: Path, n_events: int) -> None:
     from rosbags.rosbag1 import Writer
 
-    from core.importers.epose_bag import (EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, dvs_typestore, encode_event_array,
-                                          encode_pose_stamped)
+    from evpose.core.importers.epose_bag import (EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, dvs_typestore, encode_event_array, encode_pose_stamped)
 
     ts = dvs_typestore()
     rng = np.random.default_rng(1)
@@ -147,9 +146,9 @@ def child(task: str, arg: str, extra: str) -> dict:
     import hdf5plugin  # noqa: F401
     import rosbags.rosbag1  # noqa: F401
 
-    import core.importers.dsec  # noqa: F401
-    import core.importers.epose_bag  # noqa: F401
-    import core.scene  # noqa: F401
+    import evpose.core.importers.dsec  # noqa: F401
+    import evpose.core.importers.epose_bag  # noqa: F401
+    import evpose.core.data.scene  # noqa: F401
     t0 = time.perf_counter()
     res = {}
     if task == "gen-bag":
@@ -157,7 +156,7 @@ def child(task: str, arg: str, extra: str) -> dict:
     elif task == "gen-dsec":
         gen_dsec(Path(arg), int(extra))
     elif task in ("import-bag", "import-dsec", "link-dsec"):
-        from core.importers import import_scene
+        from evpose.core.importers import import_scene
 
         try:
             if task == "import-bag":
@@ -172,7 +171,7 @@ def child(task: str, arg: str, extra: str) -> dict:
     elif task == "rosbags-bag":
         from rosbags.rosbag1 import Reader
 
-        from core.importers.epose_bag import EVENT_ARRAY_TYPE, dvs_typestore
+        from evpose.core.importers.epose_bag import EVENT_ARRAY_TYPE, dvs_typestore
 
         ts = dvs_typestore()
         n = n_msgs = 0

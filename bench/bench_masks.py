@@ -9,7 +9,7 @@ IoU against the exact mask, mean and minimum over objects and poses.
 * ``exact``: open3d ``RaycastingScene``, every pixel-centre ray of ``camera.pixel_rays()`` cast
   (``bench_raster.Open3D``), each pixel labelled with the object of the nearest hit. Timed
   twice: scene built and cast per frame (poses change every frame), and the cast alone.
-* ``ours``: :meth:`core.raster.Rasterizer.render_objects`, then ``mask(k)`` per object.
+* ``ours``: :meth:`evpose.core.label.raster.Rasterizer.render_objects`, then ``mask(k)`` per object.
 * ``splat``: the original E-POSE method. ``N`` points in total (split over the objects in
   proportion to surface area) sampled once on each mesh with ``trimesh.sample.sample_surface``
   (seeded, not timed); per frame (timed): projection with the pose and the camera's K and
@@ -43,10 +43,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_raster import MODELS, Open3D, centred  # noqa: E402  (also puts the repository on sys.path)
 
-from core.camera import CameraModel  # noqa: E402
-from core.geometry import apply_T  # noqa: E402
-from core.objects import ObjectModel, box_model, cylinder_model  # noqa: E402
-from core.raster import Rasterizer  # noqa: E402
+from evpose.core.data.camera import CameraModel  # noqa: E402
+from evpose.core.data.geometry import apply_T  # noqa: E402
+from evpose.core.data.objects import ObjectModel, box_model, cylinder_model  # noqa: E402
+from evpose.core.label.raster import Rasterizer  # noqa: E402
 
 N_FRAMES = 10
 N_WARM = 2

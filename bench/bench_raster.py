@@ -1,9 +1,9 @@
-"""Benchmark: core.raster.Rasterizer against open3d's RaycastingScene on a DAVIS346 frame.
+"""Benchmark: evpose.core.label.raster.Rasterizer against open3d's RaycastingScene on a DAVIS346 frame.
 
 Run ``python bench/bench_raster.py``. For each scene, ~50 frames with slightly varying poses
 (after a warm-up) are rendered by
 
-* ``ours``: :class:`core.raster.Rasterizer` (``render_objects``: models and poses);
+* ``ours``: :class:`evpose.core.label.raster.Rasterizer` (``render_objects``: models and poses);
 * ``o3d cast``: open3d ``cast_rays`` with the BVH already built for the frame's poses (the
   build is not timed: the lower bound of DESIGN section 8, "build it once per pose set");
 * ``o3d build+cast``: the scene rebuilt for each frame's poses, then cast (what a per-frame
@@ -29,10 +29,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from core.camera import CameraModel  # noqa: E402
-from core.geometry import T_from_rotvec, apply_T, inv_T, make_T  # noqa: E402
-from core.objects import ObjectModel  # noqa: E402
-from core.raster import Rasterizer  # noqa: E402
+from evpose.core.data.camera import CameraModel  # noqa: E402
+from evpose.core.data.geometry import T_from_rotvec, apply_T, inv_T, make_T  # noqa: E402
+from evpose.core.data.objects import ObjectModel  # noqa: E402
+from evpose.core.label.raster import Rasterizer  # noqa: E402
 
 MODELS = REPO.parent / "shared/assets/epose/models"
 N_FRAMES = 50

@@ -7,7 +7,7 @@ Usage::
 Needs an X display with GLX (the window embeds the vispy space-time view). Without ``DISPLAY`` the script
 re-runs itself under ``xvfb-run -a -s "-screen 0 1600x1000x24 +extension GLX +render"``.
 
-Data: the synthetic DAVIS346 scene of ``bench/bench_export.py`` (``core.synth.generate``: box, cylinder,
+Data: the synthetic DAVIS346 scene of ``bench/bench_export.py`` (``evpose.core.sim.synth.generate``: box, cylinder,
 flatbox, trajectory B at 0.5 m/s, 2 s, seed 1, full 346x260 sensor), cached in ``bench/.data/synth_3obj_2s``
 and generated here with the same config when missing (several minutes, once).
 
@@ -80,7 +80,7 @@ from bench_spacetime import _reexec_under_xvfb, span_for  # noqa: E402  (shared 
 
 def ensure_scene() -> Path:
     """The cached 3-object DAVIS346 scene (config identical to bench_export.py's)."""
-    from core.synth import SynthConfig, generate
+    from evpose.core.sim.synth import SynthConfig, generate
 
     if (SCENE / "scene.toml").is_file():
         return SCENE
@@ -220,8 +220,8 @@ def compare_compute(session, positions) -> dict:
     (interleaved), and bincount vs np.add.at accumulation of the same windows."""
     import numpy as np
 
-    from core import represent
-    from core.session import FrameComputer
+    from evpose.core.label import represent
+    from evpose.core.session import FrameComputer
 
     cam = session.scene.camera
     reqs = frame_requests(session, positions)
@@ -252,7 +252,7 @@ def compare_compute(session, positions) -> dict:
 # ------------------------------------------------------------------------------------------------ part 2
 def measure_spacetime(qapp, window, n_events: int, repeats: int) -> dict:
 
-    from core.session import FrameComputer
+    from evpose.core.session import FrameComputer
 
     session, view = window.session, window.spacetime
     tc, span = span_for(session, n_events)
@@ -345,7 +345,7 @@ def profile_frames(qapp, window, positions) -> dict:
     set_scores and the event loop until the viewport has painted -- the scrub path without the thread."""
     from PySide6 import QtCore
 
-    from core.session import FrameComputer
+    from evpose.core.session import FrameComputer
 
     session, fv = window.session, window.frame_view
     reqs = frame_requests(session, positions)
@@ -436,9 +436,9 @@ def main(argv=None) -> int:
     import numpy as np
     from PySide6 import QtCore, QtWidgets
 
-    from app.main_window import MainWindow
-    from app.settings import Settings
-    from core.session import Session
+    from evpose.app.main_window import MainWindow
+    from evpose.app.settings import Settings
+    from evpose.core.session import Session
 
     ensure_scene()
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])

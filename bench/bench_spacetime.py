@@ -10,7 +10,7 @@ script re-runs itself under ``xvfb-run -a -s "-screen 0 1600x1000x24 +extension 
 Under Xvfb, OpenGL is Mesa's llvmpipe (software, on the machine's cores), so draw times are CPU times
 and larger than on a GPU; uploads are memcpys into the driver. The ratios are what carries over.
 
-Data: a synthetic scene (``core.synth.generate``: three objects, trajectory B at 1 m/s, full DAVIS346
+Data: a synthetic scene (``evpose.core.sim.synth.generate``: three objects, trajectory B at 1 m/s, full DAVIS346
 resolution) cached in ``bench/.data/spacetime_scene`` (about two minutes to build, once). The span is
 chosen around the middle of the recording so it holds ``--events`` events.
 
@@ -90,8 +90,8 @@ def median_time(fn, repeats: int, setup=None) -> Timing:
 def ensure_scene(n_events: int):
     """The cached synthetic scene, (re)generated when missing or too short for ``n_events``."""
     sys.path.insert(0, str(ROOT))
-    from core.scene import Scene
-    from core.synth import SynthConfig, generate
+    from evpose.core.data.scene import Scene
+    from evpose.core.sim.synth import SynthConfig, generate
 
     if SCENE.exists():
         try:
@@ -137,12 +137,12 @@ def main(argv=None) -> int:
     import numpy as np
     from PySide6 import QtWidgets
 
-    from core.session import FrameComputer, Session, SpaceTimeData
+    from evpose.core.session import FrameComputer, Session, SpaceTimeData
 
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
     from vispy import scene as vscene
 
-    from widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime_view import SpaceTimeView
 
     W, H = (int(v) for v in args.size.lower().split("x"))
     R = args.repeats
@@ -194,7 +194,7 @@ def main(argv=None) -> int:
     if session is None:  # widget part on synthesised data of the right size
         import tempfile
 
-        from core.synth import SynthConfig, generate
+        from evpose.core.sim.synth import SynthConfig, generate
         from tests.conftest import TINY_SCENE, half_davis_camera
 
         tmp = Path(tempfile.mkdtemp()) / "tiny"

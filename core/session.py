@@ -2,7 +2,7 @@
 
 Pure Python (no Qt): views subscribe with :meth:`Session.subscribe` and get told *what*
 changed (``"time"``, ``"view"``, ``"objects"``, ``"document"``, ``"history"``, ``"reviews"``).
-Document edits (clock, poses, hand-eye, reviews) go through :class:`~core.history.History`;
+Document edits (clock, poses, hand-eye, reviews) go through :class:`~evpose.core.document.history.History`;
 view state (current time, window length, representation, overlays, visibility, selection) is
 neither saved nor undoable (DESIGN section 2).
 
@@ -10,7 +10,7 @@ Frame computation is a pure function of a :class:`FrameRequest` snapshot, so the
 in a worker thread while the user keeps editing; the snapshot carries a copy of the corrections.
 
 The current window is a cell of the export grid (windows of ``window_us`` from the first event,
-:func:`core.review.grid_window`), so what the user sees and marks is an export window.
+:func:`evpose.core.document.review.grid_window`), so what the user sees and marks is an export window.
 
 Changes another program saves to ``corrections.json`` (an ``evpose ... --apply``, a second app)
 come in through :meth:`Session.check_disk` and :meth:`Session.reload_from_disk` /
@@ -32,19 +32,18 @@ from typing import Callable
 
 import numpy as np
 
-from . import represent
-from .annotate import Annotator, Request, Window, WindowLabels, label_time
-from .corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError, ReviewMark
-from .corrections_file import read as read_corrections
-from .corrections_file import signature, target_of
-from .corrections_merge import MergeResult, field_name, merge
-from .review import grid_window, insert_mark, mark_state, stale_reasons
-from .events import EventArray
-from .history import Group, History, SetValue
-from .overlay import (ObjectOverlay, axes_segments, box_segments, compose_masks_rgba, mask_contours,
-                      object_color)
-from .pose_edit import hand_eye_step, nudge_step
-from .scene import Scene
+from evpose.core.label import represent
+from evpose.core.label.annotate import Annotator, Request, Window, WindowLabels, label_time
+from evpose.core.document.corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError, ReviewMark
+from evpose.core.document.corrections_file import read as read_corrections
+from evpose.core.document.corrections_file import signature, target_of
+from evpose.core.document.corrections_merge import MergeResult, field_name, merge
+from evpose.core.document.review import grid_window, insert_mark, mark_state, stale_reasons
+from evpose.core.data.events import EventArray
+from evpose.core.document.history import Group, History, SetValue
+from evpose.core.label.overlay import (ObjectOverlay, axes_segments, box_segments, compose_masks_rgba, mask_contours, object_color)
+from evpose.core.document.pose_edit import hand_eye_step, nudge_step
+from evpose.core.data.scene import Scene
 
 OVERLAY_KINDS = ("mask", "contour", "box", "axes", "center")
 REPRESENTATION_NAMES = ("polarity", "spike", "three_channel", "time_surface", "counts", "voxel")
@@ -89,7 +88,7 @@ class FrameData:
     mask_rgba: np.ndarray | None         # (H, W, 4) uint8 composite of visible masks
     overlays: list[ObjectOverlay] = field(default_factory=list)
     inside_fraction: float | None = None  # share of the window's events on the (dilated) masks
-    scores: dict = field(default_factory=dict)  # name -> core.score alignment score (None: undefined)
+    scores: dict = field(default_factory=dict)  # name -> evpose.core.align.score alignment score (None: undefined)
     compute_ms: float = 0.0
 
 
@@ -270,9 +269,9 @@ class Session:
                    obj: str | None = None) -> ReviewMark:
         """Mark ``[t0, t1)`` (default: the current grid window) verified / rejected / flagged.
 
-        The mark replaces older marks of its scope on the overlap (:func:`core.review.insert_mark`:
+        The mark replaces older marks of its scope on the overlap (:func:`evpose.core.document.review.insert_mark`:
         no window is both verified and rejected, no duplicates) and records the clock and the
-        covered objects' pose digests (:func:`core.review.mark_state`) to detect staleness later."""
+        covered objects' pose digests (:func:`evpose.core.document.review.mark_state`) to detect staleness later."""
         w = self.view.window()
         if obj is not None and obj not in self.object_names:
             raise KeyError(obj)
@@ -290,7 +289,7 @@ class Session:
         return stale_reasons(self.scene, mark, now=now)
 
     def mark_state(self):
-        """The clock and pose digests now (:func:`core.review.mark_state`, all objects)."""
+        """The clock and pose digests now (:func:`evpose.core.document.review.mark_state`, all objects)."""
         return mark_state(self.scene)
 
     def next_window_where(self, predicate: Callable[[str | None], bool], direction: int = 1) -> int | None:
@@ -307,9 +306,9 @@ class Session:
 
     # ------------------------------------------------------------------ saving, other writers, journal
     def save(self, prefer: str | None = None) -> Path:
-        """Save through :meth:`core.scene.Scene.save_corrections` (revision check). Another program's
+        """Save through :meth:`evpose.core.data.scene.Scene.save_corrections` (revision check). Another program's
         edits saved meanwhile are merged in as one labelled undo step; a real conflict raises
-        :class:`core.corrections_merge.CorrectionsConflict` (nothing saved) unless ``prefer``
+        :class:`evpose.core.document.corrections_merge.CorrectionsConflict` (nothing saved) unless ``prefer``
         ("local" / "disk") resolves it."""
         def take_merge(merged: Corrections) -> None:
             rev = self.scene.corrections.revision
@@ -374,7 +373,7 @@ class Session:
     def merge_from_disk(self, change: "ExternalChange", prefer: str | None = None) -> MergeResult:
         """Apply another program's saved edits under the unsaved local ones (three-way merge against
         the state last loaded or saved; one labelled undo step). A real conflict raises
-        :class:`core.corrections_merge.CorrectionsConflict` and changes nothing, unless ``prefer``."""
+        :class:`evpose.core.document.corrections_merge.CorrectionsConflict` and changes nothing, unless ``prefer``."""
         res = merge(self._base_doc(), self.scene.corrections, change.disk, prefer=prefer,
                     source=str(self.scene.corrections_path))
         clean = res.doc.canonical() == change.disk.canonical()
@@ -401,7 +400,7 @@ class Session:
         data["autosaved_at"] = time.time()
         data["base"] = doc.base
         data["base_revision"] = doc.revision
-        from .fileio import atomic_write_text
+        from evpose.core.data.fileio import atomic_write_text
 
         try:
             return atomic_write_text(self.journal_path, json.dumps(data, indent=1))
@@ -457,7 +456,7 @@ class Session:
 
         When the journal records the state its edits started from, it is merged with the current
         document (which may hold changes another program saved since): the autosaved edits win
-        where both changed a field. Returns those conflicts (:class:`core.corrections_merge.Conflict`)."""
+        where both changed a field. Returns those conflicts (:class:`evpose.core.document.corrections_merge.Conflict`)."""
         conflicts = []
         target = journal
         if journal.base is not None:
@@ -542,7 +541,7 @@ class FrameComputer:
     def _scores(self, scene: Scene, ev: EventArray, labels: WindowLabels) -> dict:
         """The window's alignment score per object (:mod:`core.score`, higher is better), from the
         label and depth images the frame already has: no second rasterisation."""
-        from .score import ScoreParams, score_window
+        from evpose.core.align.score import ScoreParams, score_window
 
         names = scene.object_names
         if not labels.valid or labels.label_map is None or labels.depth_m is None:

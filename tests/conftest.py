@@ -14,7 +14,7 @@ def pytest_configure(config):
     # after pytest-xvfb has set DISPLAY; without any display Qt widgets still run offscreen
     if not os.environ.get("DISPLAY"):
         os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
-    from app.qt_compat import guard_pyside_refcount_leak
+    from evpose.app.qt_compat import guard_pyside_refcount_leak
 
     guard_pyside_refcount_leak()
 
@@ -62,7 +62,7 @@ def models_dir() -> Path:
 @pytest.fixture(scope="session")
 def tiny_scene_dir(tmp_path_factory) -> Path:
     """Built once per test session; never modify it (use ``scene_copy``)."""
-    from core.synth import SynthConfig, generate
+    from evpose.core.sim.synth import SynthConfig, generate
 
     out = tmp_path_factory.mktemp("scenes") / "tiny"
     generate(out, SynthConfig(**TINY_SCENE, camera=half_davis_camera()))

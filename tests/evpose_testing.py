@@ -4,7 +4,7 @@ from __future__ import annotations
 
 def half_davis_camera() -> dict:
     """DAVIS346 calibration at half resolution (173x130): same lens, 4x fewer pixels, fast tests."""
-    from core.camera import CameraModel
+    from evpose.core.data.camera import CameraModel
 
     cam = CameraModel.davis346()
     K = cam.K.copy()
@@ -25,6 +25,6 @@ def msidx_cache_file(path):
     import hashlib
     from pathlib import Path
 
-    import core.events as ce
+    import evpose.core.data.events as ce
 
     return ce.default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"

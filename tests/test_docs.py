@@ -2,7 +2,7 @@
 import re
 from pathlib import Path
 
-from app.actions import SHORTCUTS
+from evpose.app.actions import SHORTCUTS
 
 REPO = Path(__file__).resolve().parents[1]
 README = (REPO / "README.md").read_text()

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
-from core.pose_edit import FRAMES, delta_components
-from core.session import Session
+from evpose.core.document.pose_edit import FRAMES, delta_components
+from evpose.core.session import Session
 
 OFFSET_LIMIT_US = 10_000_000
 TRANSLATION_STEPS_MM = (0.1, 0.5, 1.0, 2.0, 5.0, 10.0)

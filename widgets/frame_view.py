@@ -10,10 +10,10 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from core.overlay import AXIS_COLORS
-from core.session import FrameData, Session
+from evpose.core.label.overlay import AXIS_COLORS
+from evpose.core.session import FrameData, Session
 
-from .labels import Readout
+from evpose.widgets.labels import Readout
 
 
 def _polylines_to_nan_separated(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -35,7 +35,7 @@ def _segments_to_pairs(segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class FrameView(QtWidgets.QWidget):
-    """Shows :class:`~core.session.FrameData`; reports hover information.
+    """Shows :class:`~evpose.core.session.FrameData`; reports hover information.
 
     Signals
     -------
@@ -81,7 +81,7 @@ class FrameView(QtWidgets.QWidget):
         self.vb.setRange(rect, padding=0.01)
 
         # one constant-size line: frame info on the left, hover readout on the right; the texts
-        # change every frame / mouse move without a relayout of the window (widgets.labels)
+        # change every frame / mouse move without a relayout of the window (evpose.widgets.labels)
         self.info = Readout("t 9999.9999 s   win 99 ms   99,999 ev   on masks 99.9%   (99 ms)",
                             stretch=True)
         self.info.setToolTip("current window; right: what is under the mouse (pixel, events, object, depth)")

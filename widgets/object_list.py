@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from core.session import Session
+from evpose.core.session import Session
 
 COLUMNS = ("show", "", "object", "class", "corrected", "score")
 

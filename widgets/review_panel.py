@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from core.corrections import REVIEW_STATUSES
-from core.session import Session
+from evpose.core.document.corrections import REVIEW_STATUSES
+from evpose.core.session import Session
 
 STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
 STATUS_KEYS = {"verified": "V", "rejected": "R", "flagged": "F"}

@@ -4,9 +4,9 @@ projected silhouettes stacked along t as "tubes" (vispy, DESIGN sections 1-2).
 A clock offset between the event camera and the pose source shows here as a *shear*: the event
 sheets swept by a moving edge lean one way, the tubes built from the labelled poses another.
 
-The widget is a view of a :class:`core.session.Session`: it takes the session in its constructor,
+The widget is a view of a :class:`evpose.core.session.Session`: it takes the session in its constructor,
 subscribes to its changes (view options, object visibility) and draws the display-ready
-:class:`core.session.SpaceTimeData` that core computes (``FrameComputer.spacetime``). The owner
+:class:`evpose.core.session.SpaceTimeData` that core computes (``FrameComputer.spacetime``). The owner
 (the app's controller or a test) computes that data, off the GUI thread if it likes, and hands it
 over with :meth:`SpaceTimeView.set_data`; the widget never imports ``app``.
 
@@ -39,7 +39,7 @@ import numpy as np
 import shiboken6
 from PySide6 import QtCore, QtWidgets
 
-from .labels import Readout
+from evpose.widgets.labels import Readout
 
 #: Event colours, as in the frame view (``core.represent``): ON red, OFF blue.
 ON_RGBA = (1.0, 0.0, 0.0, 0.55)
@@ -187,7 +187,7 @@ class SpaceTimeView(QtWidgets.QWidget):
 
     Parameters
     ----------
-    session : core.session.Session
+    session : evpose.core.session.Session
         The model. Read: ``view.spacetime_budget``, ``view.spacetime_span_us``, ``view.window_us``,
         ``view.hidden``, the camera size. Written (view state only): ``spacetime_budget`` and
         ``spacetime_span_us`` through ``set_view_option``.
@@ -367,7 +367,7 @@ class SpaceTimeView(QtWidgets.QWidget):
         return self._scale
 
     def set_data(self, data) -> None:
-        """Draw ``data`` (:class:`core.session.SpaceTimeData`): events coloured by polarity, tubes of the
+        """Draw ``data`` (:class:`evpose.core.session.SpaceTimeData`): events coloured by polarity, tubes of the
         objects not hidden in the session, the current-window slab at t = 0 and the span's cage.
 
         More points than ``session.view.spacetime_budget`` are thinned by a stride before upload. The

@@ -1,7 +1,7 @@
 """The whole sequence at a glance: event rate, robot speed, review marks, alignment scores; scrub and play.
 
 x is seconds since the first event on the **event clock** (``(t_us - t_ref_us) * 1e-6``). The robot speed
-comes from :func:`core.session.timeline_data`, which maps each bin through the clock in effect, so a wrong
+comes from :func:`evpose.core.session.timeline_data`, which maps each bin through the clock in effect, so a wrong
 time offset shows as a horizontal shift between the event-rate and speed curves; the speed is recomputed
 (debounced) when the document's clock changes.
 
@@ -23,9 +23,9 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from core.session import Session, TimelineData, timeline_data
+from evpose.core.session import Session, TimelineData, timeline_data
 
-from .labels import Readout
+from evpose.widgets.labels import Readout
 
 #: Review status colours (same as the review panel's).
 STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
@@ -99,7 +99,7 @@ def _curve(pen, name=None) -> pg.PlotDataItem:
 
 
 class Timeline(QtWidgets.QWidget):
-    """Timeline of a :class:`~core.session.Session`.
+    """Timeline of a :class:`~evpose.core.session.Session`.
 
     Signals
     -------
@@ -387,7 +387,7 @@ class Timeline(QtWidgets.QWidget):
         self.set_data(data)
 
     def set_data(self, data: TimelineData) -> None:
-        """Display whole-sequence curves computed in core (see :func:`core.session.timeline_data`)."""
+        """Display whole-sequence curves computed in core (see :func:`evpose.core.session.timeline_data`)."""
         first = self.data is None
         self.data = data
         if len(data.t_s):
@@ -670,7 +670,7 @@ class Timeline(QtWidgets.QWidget):
             NaN where undefined (object out of view, no events, no pose).
         lower_is_better : bool
             False (default) for :mod:`core.score`'s ``score`` (1 = every event on an edge, 0 = noise): the worst
-            window is the minimum, as in ``core.score.worst_window``. True for distances (``distance_px``):
+            window is the minimum, as in ``evpose.core.align.score.worst_window``. True for distances (``distance_px``):
             the worst window is the maximum.
         label : str
             Left-axis label, with units.

@@ -2,31 +2,31 @@
 
 Atomic per file, resumable, with ``progress(fraction, message)`` and ``cancel() -> bool`` callbacks;
 no knowledge of threads or GUI (the app calls :func:`export_scene` from a worker thread).
-See :mod:`core.export.common` for windows, resume and the process pool, and the writer modules for
+See :mod:`evpose.core.export.common` for windows, resume and the process pool, and the writer modules for
 every file and encoding.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from .common import FORMATS, ExportError, ExportSummary, run_export
+from evpose.core.export.common import FORMATS, ExportError, ExportSummary, run_export
 
 __all__ = ["export_scene", "make_writer", "ExportSummary", "ExportError", "FORMATS"]
 
 
 def make_writer(fmt: str, format_options: dict | None = None):
-    """The :class:`~core.export.common.FormatWriter` of a format name, with its options."""
+    """The :class:`~evpose.core.export.common.FormatWriter` of a format name, with its options."""
     opts = dict(format_options or {})
     if fmt == "epose":
-        from .epose import EposeWriter
+        from evpose.core.export.epose import EposeWriter
 
         cls = EposeWriter
     elif fmt == "bop":
-        from .bop import BopWriter
+        from evpose.core.export.bop import BopWriter
 
         cls = BopWriter
     elif fmt == "h5":
-        from .h5 import H5Writer
+        from evpose.core.export.h5 import H5Writer
 
         cls = H5Writer
     else:
@@ -45,7 +45,7 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
 
     Parameters
     ----------
-    scene_or_path : core.scene.Scene or path
+    scene_or_path : evpose.core.data.scene.Scene or path
         A scene (its current corrections are used, frozen at the start) or a scene folder / scene.toml
         (its ``corrections.json`` is loaded).
     fmt : {"epose", "bop", "h5"}
@@ -60,7 +60,7 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
     only_verified : bool
         Export only windows whose every instant is effectively ``verified`` for every exported object
         by a mark that is not stale; partly covered windows are left out (see
-        :func:`core.export.common.review_usage`). The summary counts the windows verified marks
+        :func:`evpose.core.export.common.review_usage`). The summary counts the windows verified marks
         touch and why those not exported were left out.
     include_stale : bool
         With ``only_verified``: also use verified marks made before a later change of the clock or of
@@ -76,7 +76,7 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
     progress : callable, optional
         ``progress(fraction, message)``.
     cancel : callable, optional
-        ``cancel() -> bool``; True stops the export, raising :class:`core.events.Cancelled`. The
+        ``cancel() -> bool``; True stops the export, raising :class:`evpose.core.data.events.Cancelled`. The
         folder is left without partial or temp files and a rerun resumes.
     format_options : dict, optional
         Writer options: epose ``png_compression``; bop ``K_new`` (3x3, default K), ``scene_id``,
@@ -87,14 +87,14 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
         (``syncfs``) before the parent journals the chunk as complete, so a journaled window is
         durable (one commit per chunk instead of one fsync per file: per-file fsync costs 2-3 ms on
         the development disk, i.e. 30+ ms for the 13 files of a 3-object E-POSE window). "file":
-        fsync every file before its rename (``core.fileio.atomic_path`` semantics). ``False`` /
+        fsync every file before its rename (``evpose.core.data.fileio.atomic_path`` semantics). ``False`` /
         "none": no fsync at all.
 
     Returns
     -------
     ExportSummary
     """
-    from ..scene import Scene
+    from evpose.core.data.scene import Scene
 
     writer = make_writer(fmt, format_options)
     if isinstance(objects, str):

@@ -5,8 +5,8 @@ runners, and the export manifest.
 Vocabulary
 ----------
 *window*
-    One half-open event-time interval ``[t0_us, t1_us)`` of the tiling (:func:`core.annotate.time_windows`
-    or :func:`core.annotate.count_windows`); ``index`` is its position in the tiling and names its files.
+    One half-open event-time interval ``[t0_us, t1_us)`` of the tiling (:func:`evpose.core.label.annotate.time_windows`
+    or :func:`evpose.core.label.annotate.count_windows`); ``index`` is its position in the tiling and names its files.
 *selected*
     Windows that pass ``only_verified`` (all windows when it is off).
 *unlabeled*
@@ -36,14 +36,14 @@ Every file is written to a hidden temp file beside its target (``.<name>.<pid>-<
 into place, so a reader never sees a partial file; the files of one window are renamed in order, its
 last file last. Durability across a power cut (``durable``): "batch" (default) syncs the filesystem
 (``syncfs``) before the parent fsyncs the journal lines of a chunk of windows, so a journaled window is
-on disk; "file" fsyncs every file before its rename, like :func:`core.fileio.atomic_path` (2-3 ms per
+on disk; "file" fsyncs every file before its rename, like :func:`evpose.core.data.fileio.atomic_path` (2-3 ms per
 file on the development disk: 30+ ms per 3-object E-POSE window); "none" never syncs.
 
 Processes
 ---------
 ``jobs > 1`` runs a ``spawn`` process pool. Each worker rebuilds the scene from the pickled manifest and
 a JSON copy of the corrections and opens its own event store (an h5py handle never crosses processes),
-builds one :class:`~core.annotate.Annotator`, and processes contiguous chunks of windows whose poses the
+builds one :class:`~evpose.core.label.annotate.Annotator`, and processes contiguous chunks of windows whose poses the
 parent interpolated in one vectorised call. Workers ignore SIGINT; the parent turns Ctrl-C or a
 ``cancel()`` into ``pool.terminate()``, removes temp files and re-raises.
 """
@@ -64,12 +64,12 @@ from typing import Callable
 
 import numpy as np
 
-from ..annotate import Annotator, Request, Window, count_windows, time_windows
-from ..corrections import Corrections
-from ..events import Cancelled, EventArray
-from ..fileio import TEMP_RE, fsync_dir, sync_filesystem, with_path
-from ..owned_files import OwnedLog, held_input, in_the_way, inventory, remove_owned
-from ..trajectory import REASON_AFTER, REASON_BEFORE
+from evpose.core.label.annotate import Annotator, Request, Window, count_windows, time_windows
+from evpose.core.document.corrections import Corrections
+from evpose.core.data.events import Cancelled, EventArray
+from evpose.core.data.fileio import TEMP_RE, fsync_dir, sync_filesystem, with_path
+from evpose.core.data.owned_files import OwnedLog, held_input, in_the_way, inventory, remove_owned
+from evpose.core.data.trajectory import REASON_AFTER, REASON_BEFORE
 
 __all__ = [
     "EXPORT_LAYOUT_VERSION", "FORMATS", "STATE_DIR", "MANIFEST_NAME", "ExportError", "ExportSummary",
@@ -85,7 +85,7 @@ JOURNAL_NAME = "journal.jsonl"
 MANIFEST_NAME = "export_manifest.json"
 README_NAME = "README.txt"
 UNLABELED_BEFORE = REASON_BEFORE     # "label time outside the trajectory: pose time before its first pose ..."
-UNLABELED_AFTER = REASON_AFTER       # holes: core.trajectory.hole_reason, "label time in a trajectory hole [a, b] us ..."
+UNLABELED_AFTER = REASON_AFTER       # holes: evpose.core.data.trajectory.hole_reason, "label time in a trajectory hole [a, b] us ..."
 UNLABELED_OTHER = "label time outside the trajectory (no extrapolation)"
 #: Stages of the per-window time split (seconds summed over windows, all processes).
 STAGES = ("events", "annotate", "images", "mat", "write")
@@ -203,7 +203,7 @@ def _status_pieces(reviews, obj: str, is_stale=None) -> tuple[np.ndarray, np.nda
     """Piecewise-constant effective review status of one object: breakpoints (sorted int64) and a
     category per piece ``[b[j], b[j+1])``: none, verified, verified but stale (``is_stale(mark, obj)``),
     rejected/flagged. The effective mark is the object's own mark, else the all-objects mark (the rule
-    of :func:`core.review.effective_status`; later marks win within a scope)."""
+    of :func:`evpose.core.document.review.effective_status`; later marks win within a scope)."""
     marks = [m for m in reviews if m.object is None or m.object == obj]
     if not marks:
         return np.zeros(0, np.int64), np.zeros(0, np.int8)
@@ -232,7 +232,7 @@ def review_usage(windows, reviews, objects, is_stale=None) -> tuple[np.ndarray, 
     """Which windows ``--only-verified`` exports, and why windows touched by verified marks are not.
 
     A window ``[t0, t1)`` is exported iff, for every exported object and at every instant of
-    ``[t0, t1)``, the effective review status (:func:`core.review.effective_status`) is ``verified``
+    ``[t0, t1)``, the effective review status (:func:`evpose.core.document.review.effective_status`) is ``verified``
     by a mark that is not stale (``is_stale(mark, obj)``; None: no mark is stale). **Partly covered
     windows are never exported**: a window must be covered entirely by verified marks, and a
     rejected or flagged mark over any part of it excludes it. Empty windows (``t1 <= t0``) are never
@@ -289,8 +289,8 @@ def verified_mask(windows, reviews, objects, is_stale=None) -> np.ndarray:
 
 def scene_staleness(scene):
     """``is_stale(mark, obj)`` for :func:`review_usage`: the mark was made under another clock or
-    another pose of ``obj`` than ``scene`` has now (:func:`core.review.stale_reasons`)."""
-    from ..review import mark_state, stale_reasons
+    another pose of ``obj`` than ``scene`` has now (:func:`evpose.core.document.review.stale_reasons`)."""
+    from evpose.core.document.review import mark_state, stale_reasons
 
     now = mark_state(scene)
     return lambda mark, obj: bool(stale_reasons(scene, mark, obj, now=now))
@@ -360,7 +360,7 @@ def fingerprint_sha(doc: dict) -> str:
 # ------------------------------------------------------------------------------------------- files
 def clean_temp_files(root) -> int:
     """Remove leftovers of interrupted atomic writes under ``root``: evpose's temporary names only
-    (``.<name>.<pid>-<n>.tmp``, :data:`core.fileio.TEMP_RE`; a user's ``.notes.tmp`` stays). The caller
+    (``.<name>.<pid>-<n>.tmp``, :data:`evpose.core.data.fileio.TEMP_RE`; a user's ``.notes.tmp`` stays). The caller
     holds the folder's lock, so no other export writes there. Returns how many were removed."""
     root = Path(root)
     if not root.is_dir():
@@ -377,7 +377,7 @@ def clean_temp_files(root) -> int:
 
 def _default_file_mode() -> int:
     """``0o666`` minus the process umask: the mode ``open()`` would give a new file (``mkstemp``, used by
-    ``core.fileio.temp_path_for``, creates 0600 files, which would make the dataset unreadable to others)."""
+    ``evpose.core.data.fileio.temp_path_for``, creates 0600 files, which would make the dataset unreadable to others)."""
     try:
         with open("/proc/self/status") as f:
             for line in f:
@@ -395,7 +395,7 @@ FILE_MODE = _default_file_mode()
 
 class AtomicBatch:
     """Write several files atomically: each goes to a hidden temp file beside its target
-    (same naming as ``core.fileio.temp_path_for``), is fsync'ed (``durable``), and only when all are written are they
+    (same naming as ``evpose.core.data.fileio.temp_path_for``), is fsync'ed (``durable``), and only when all are written are they
     renamed onto their targets, followed by one fsync of each directory. A reader never sees a partial
     file; if anything raises (including KeyboardInterrupt) every temp file is removed and no target is
     touched. Files are renamed in the order they were added, so the last one added appears last.
@@ -411,7 +411,7 @@ class AtomicBatch:
 
     def _open_temp(self, path: Path) -> tuple[Path, int]:
         """A new hidden temp file beside ``path`` (``.<name>.<pid>-<n>.tmp``, the pattern of
-        ``core.fileio.temp_path_for`` and of :func:`clean_temp_files`), created with O_EXCL and the
+        ``evpose.core.data.fileio.temp_path_for`` and of :func:`clean_temp_files`), created with O_EXCL and the
         normal file mode in one call (mkstemp would cost a random name, a second open and a chmod)."""
         while True:
             tmp = path.with_name(f".{path.name}.{os.getpid()}-{next(AtomicBatch._counter)}.tmp")
@@ -445,7 +445,7 @@ class AtomicBatch:
 
     def commit(self) -> None:
         dirs = []
-        if self.log is not None:       # logged before they appear under their names (see core.owned_files)
+        if self.log is not None:       # logged before they appear under their names (see evpose.core.data.owned_files)
             self.log.files(self._stats)
             self._stats = []
         for i, (tmp, path) in enumerate(self._pending):
@@ -723,7 +723,7 @@ class ExportContext:
     n_digits: int
     durable: str = "batch"       # durability mode, see durability_mode()
     extra: dict = field(default_factory=dict)
-    #: the parent's record of the files it writes (core.owned_files); workers keep their own
+    #: the parent's record of the files it writes (evpose.core.data.owned_files); workers keep their own
     owned: OwnedLog | None = None
 
     @property
@@ -751,7 +751,7 @@ class WorkerContext:
     """Per-process state: the scene, one Annotator, the writer's buffers, stage timings."""
 
     def __init__(self, spec: WorkerSpec, scene=None, owned: OwnedLog | None = None):
-        from ..scene import Scene
+        from evpose.core.data.scene import Scene
 
         if scene is None:
             scene = Scene(spec.manifest, Corrections.from_json(spec.corrections_json))
@@ -767,7 +767,7 @@ class WorkerContext:
         self.timings = dict.fromkeys(STAGES, 0.0)
         #: fsync each file before its rename ("file" mode); "batch" syncs the filesystem per chunk
         self.fsync_files = spec.durable == "file"
-        #: every file this process writes is logged here before it appears (core.owned_files)
+        #: every file this process writes is logged here before it appears (evpose.core.data.owned_files)
         self.owned = owned if owned is not None else OwnedLog(self.out_dir, EXPORT_ROLE, f"export {self.writer.fmt}")
         self.state = self.writer.setup_worker(self)
 
@@ -847,7 +847,7 @@ def _prepare_out_dir(out_dir: Path, sha: str, doc: dict, force: bool, inputs=())
 
     * empty or new: used;
     * an earlier export with the same fingerprint: resumed (nothing removed);
-    * otherwise every entry is sorted by :func:`core.owned_files.inventory`: anything evpose did not
+    * otherwise every entry is sorted by :func:`evpose.core.data.owned_files.inventory`: anything evpose did not
       write (or that changed since) is never removed and refuses the run, naming it; a folder holding
       an input of this export (the scene) is refused; an earlier export with results (journaled
       windows or a finished export) is replaced only with ``force``; one without results -- a failed
@@ -903,7 +903,7 @@ def _describe_difference(old: dict, new: dict, prefix: str = "") -> str:
 
 def _unlabeled_reason(scene, t_label_us: int) -> str:
     """Why a window has no label: its label time maps before or after the trajectory, or into a hole
-    of it (``in a trajectory hole [a, b] us``; see :meth:`core.scene.Scene.unlabeled_reasons`)."""
+    of it (``in a trajectory hole [a, b] us``; see :meth:`evpose.core.data.scene.Scene.unlabeled_reasons`)."""
     reasons = getattr(scene, "unlabeled_reasons", None)
     r = reasons(np.array([t_label_us], np.int64))[0] if reasons is not None else None
     return r or UNLABELED_OTHER
@@ -917,7 +917,7 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window
                only_verified=False, objects=None, margin_m=0.0, jobs=1, force=False, durable=True,
                include_stale=False, progress: Callable[[float, str], None] | None = None,
                cancel: Callable[[], bool] | None = None) -> ExportSummary:
-    """Run one export (see :func:`core.export.export_scene` for the parameters)."""
+    """Run one export (see :func:`evpose.core.export.export_scene` for the parameters)."""
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     durable = durability_mode(durable)
@@ -1109,7 +1109,7 @@ def _snapshot_scene(scene):
     corr = Corrections.from_json(scene.corrections.to_json())
     if hasattr(scene, "with_corrections"):
         return scene.with_corrections(corr)
-    from ..scene import Scene  # pragma: no cover
+    from evpose.core.data.scene import Scene  # pragma: no cover
 
     return Scene(scene.manifest, corr)
 

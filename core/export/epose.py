@@ -17,7 +17,7 @@ events), 346x260 for a DAVIS346:
     Several objects: also ``NNNN_segmented_image_obj{K}.png``, the same for object ``K`` alone.
 ``NNNN_three_channel_image.png``
     8-bit RGB: R = ON count / max ON count, G = OFF count / max OFF count, B = latest event time at the
-    pixel ``(t_last - t0 + 1) / max`` (:func:`core.represent.three_channel`, this window's events only).
+    pixel ``(t_last - t0 + 1) / max`` (:func:`evpose.core.label.represent.three_channel`, this window's events only).
 ``NNNN_bbox.txt``
     As the original: one exported object: one line of 8 numbers ``u1 v1 .. u4 v4`` (``%.4f``), the
     distorted pixel coordinates of box corners p1..p4; several: one line per object,
@@ -49,17 +49,17 @@ import time
 
 import numpy as np
 
-from ..annotate import Request
-from .common import AtomicBatch, ExportError, FormatWriter, encode_png, savemat_bytes, write_atomic
+from evpose.core.label.annotate import Request
+from evpose.core.export.common import (AtomicBatch, ExportError, FormatWriter, encode_png, savemat_bytes, write_atomic)
 
-#: Original E-POSE corner order p1..p8 as indices into :func:`core.objects.ObjectModel.bbox_corners`
+#: Original E-POSE corner order p1..p8 as indices into :func:`evpose.core.data.objects.ObjectModel.bbox_corners`
 #: (whose corner i takes the max along axis a when bit a of i is set).
 EPOSE_CORNER_ORDER = np.array([3, 1, 2, 0, 7, 5, 6, 4])
 
 
 def three_channel_image(ev, width: int, height: int, t0_us: int, spike: np.ndarray, bgr: bool = False) -> np.ndarray:
     """``three_channel_rgb(three_channel(ev, width, height, t0_us, t1_us))`` as RGB ``uint8 (H, W, 3)``
-    (BGR with ``bgr``, for OpenCV), bit-identical (tested against core.represent), with the float
+    (BGR with ``bgr``, for OpenCV), bit-identical (tested against evpose.core.label.represent), with the float
     conversions done only at the pixels that have events (``spike`` > 0, flat ``(H*W,)``); the image is
     zero elsewhere. Same arithmetic: channel = float32(value / max) (float64 division), then
     rint(float64(channel) * 255). 0.6 ms instead of 4 ms CPU for a 16 k-event DAVIS346 window.
@@ -323,6 +323,6 @@ DELIBERATE DIFFERENCES FROM THE ORIGINAL E-POSE SCRIPTS
 
 
 def _version() -> str:
-    from .common import evpose_version
+    from evpose.core.export.common import evpose_version
 
     return evpose_version()

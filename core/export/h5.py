@@ -18,7 +18,7 @@ Layout (N = selected windows, in tiling order; K = exported objects; H x W = sen
     label_map          (N, H, W) int16        exported object index 0..K-1 of the visible surface, -1 background
                                               (pixels of scene objects that are not exported are -1 too)
     frames/counts      (N, 2, H, W) uint16    [0] ON (p=1), [1] OFF (p=0) event counts, saturated at 65535
-    frames/three_channel (N, H, W, 3) uint8   optional: core.represent.three_channel as RGB (ON, OFF, time)
+    frames/three_channel (N, H, W, 3) uint8   optional: evpose.core.label.represent.three_channel as RGB (ON, OFF, time)
     objects/corners_obj (K, 8, 3) float64     box corners in the object frame (corner order: bit a of the
                                               corner index set = max along axis a; x bit 0, y bit 1, z bit 2)
     _done              (N,) uint8             1 when the row is complete (resume bookkeeping)
@@ -39,10 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..annotate import Request
-from ..fileio import ensure_free_space, fsync_dir, os_error_from_hdf5
-from ..represent import polarity_counts, three_channel, three_channel_rgb
-from .common import ExportError, FormatWriter, evpose_version, write_atomic
+from evpose.core.label.annotate import Request
+from evpose.core.data.fileio import ensure_free_space, fsync_dir, os_error_from_hdf5
+from evpose.core.label.represent import polarity_counts, three_channel, three_channel_rgb
+from evpose.core.export.common import ExportError, FormatWriter, evpose_version, write_atomic
 
 H5_FORMAT = "evpose-h5/1"
 COUNTS_MAX = np.iinfo(np.uint16).max
@@ -181,7 +181,7 @@ class H5Writer(FormatWriter):
         if f is None:
             ensure_free_space(part, _MARGIN_BYTES + len(ctx.extra["selected"]) * _WINDOW_DTYPE.itemsize,
                               "a new HDF5 file")
-            ctx.owned.partial(part)          # logged before it exists (core.owned_files)
+            ctx.owned.partial(part)          # logged before it exists (evpose.core.data.owned_files)
             try:
                 f = self._create(ctx, part)
             except Exception as exc:
@@ -444,7 +444,7 @@ class H5Writer(FormatWriter):
         return {"i": w.index, "status": "written" if labels is not None else "unlabeled"}, p
 
     def readme(self, ctx) -> str:
-        from . import h5 as mod
+        from evpose.core.export import h5 as mod
 
         return (f"HDF5 export of scene \"{ctx.scene.name}\" written by evpose {evpose_version()}; "
                 "see export_manifest.json for the configuration.\n" + (mod.__doc__ or ""))

@@ -11,7 +11,7 @@ and the field.
 
 Example
 -------
->>> from core.importers import import_scene, ImportOptions
+>>> from evpose.core.importers import import_scene, ImportOptions
 >>> summary = import_scene("npz", ["rec.npz"], "scenes/rec", ImportOptions(camera="cam.json"))  # doctest: +SKIP
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
-from .common import REPORT_FILENAME, ImportContext, ImportFailure, ImportOptions, ImportReport
+from evpose.core.importers.common import (REPORT_FILENAME, ImportContext, ImportFailure, ImportOptions, ImportReport)
 
 __all__ = ["FORMATS", "import_scene", "ImportFailure", "ImportOptions", "ImportReport", "REPORT_FILENAME"]
 
@@ -52,7 +52,7 @@ def import_scene(fmt: str, sources, out, options: ImportOptions | None = None, *
     progress : callable, optional
         ``progress(fraction, message)``, fraction in [0, 1].
     cancel : callable, optional
-        ``cancel() -> bool``; True aborts with :class:`core.events.Cancelled` and leaves nothing behind.
+        ``cancel() -> bool``; True aborts with :class:`evpose.core.data.events.Cancelled` and leaves nothing behind.
     log : callable or None, optional
         Receives every assumption/repair/warning line; default ``"stderr"`` prints them there, None is silent.
 
@@ -75,11 +75,11 @@ def import_scene(fmt: str, sources, out, options: ImportOptions | None = None, *
             raise TypeError(f"import_scene: unknown option {k!r}")
         setattr(opts, k, v)
     if isinstance(log, str):
-        from .common import _stderr_log
+        from evpose.core.importers.common import _stderr_log
 
         log = _stderr_log
     ctx = ImportContext(fmt, sources, opts, progress=progress, cancel=cancel, log=log)
-    from .common import check_out, import_inputs
+    from evpose.core.importers.common import check_out, import_inputs
 
     check_out(out, opts.force, import_inputs(sources, opts))   # fail fast, before reading anything (checked again when writing)
     mod, fn = FORMATS[fmt]

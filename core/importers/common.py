@@ -3,11 +3,11 @@
 Every importer turns published data into a scene folder (DESIGN section 4) through the same pieces:
 
 * :class:`ImportFailure` -- the only exception an importer lets out for bad input (besides
-  :class:`~core.events.Cancelled` and ``KeyboardInterrupt``). Its message always reads
+  :class:`~evpose.core.data.events.Cancelled` and ``KeyboardInterrupt``). Its message always reads
   ``"{file}: {record}: {field}: {message}"``, e.g. ``"rec.bag: message 12 on /dvs/events: events: ..."``.
 * :class:`ImportReport` -- everything that was assumed, repaired, dropped or guessed; written to
   ``import_report.json`` in the scene and echoed on stderr (``log``).
-* :class:`EventSink` -- validation of the event stream on its way to :class:`~core.events.EventWriter`:
+* :class:`EventSink` -- validation of the event stream on its way to :class:`~evpose.core.data.events.EventWriter`:
   out-of-sensor events are dropped and counted, events unsorted inside a chunk are sorted (stable, counted),
   and chunks that overlap in time (e.g. ROS messages) are merged by a **bounded stream merge**: the sink keeps
   the newest ``reorder_window_us`` of events (default 100 ms, at most ``max_pending`` events) in memory and
@@ -21,7 +21,7 @@ Every importer turns published data into a scene folder (DESIGN section 4) throu
 * time units: :func:`guess_time_unit` (seconds / ms / µs / ns from magnitude, event rate or pose period) and
   exact conversions to int64 µs with **round half up** (``floor(x * 10**6 + 1/2)`` for seconds).
 * rotations: :func:`check_T` projects onto SO(3), reports the residual and refuses above
-  :data:`~core.geometry.ROTATION_TOLERANCE` unless ``repair``.
+  :data:`~evpose.core.data.geometry.ROTATION_TOLERANCE` unless ``repair``.
 """
 from __future__ import annotations
 
@@ -41,12 +41,12 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera import CameraError, CameraModel
-from ..events import Cancelled, EventArray, EventWriter
-from ..fileio import atomic_write_text
-from ..geometry import ROTATION_TOLERANCE, make_T, orthonormalize, rotation_angle
-from ..scene import SCENE_FILENAME, ObjectSpec, SceneError, SceneManifest, load_manifest
-from ..trajectory import Trajectory, TrajectoryError
+from evpose.core.data.camera import CameraError, CameraModel
+from evpose.core.data.events import Cancelled, EventArray, EventWriter
+from evpose.core.data.fileio import atomic_write_text
+from evpose.core.data.geometry import ROTATION_TOLERANCE, make_T, orthonormalize, rotation_angle
+from evpose.core.data.scene import SCENE_FILENAME, ObjectSpec, SceneError, SceneManifest, load_manifest
+from evpose.core.data.trajectory import Trajectory, TrajectoryError
 
 REPORT_FILENAME = "import_report.json"
 REPORT_FORMAT = "evpose-import-report/1"
@@ -771,7 +771,7 @@ class EventSink:
 def import_inputs(sources, options: "ImportOptions") -> list[Path]:
     """Every path an import reads: the sources and the paths its options name (calibration, meshes and
     pose files of ``--objects``, assets, models, the RGB-to-event calibration)."""
-    from ..owned_files import input_paths
+    from evpose.core.data.owned_files import input_paths
 
     rgb = options.rgb_to_event if options.rgb_to_event not in (None, "auto", "none") else None
     return input_paths(list(sources or []), options.camera, options.objects, options.assets, options.models, rgb)
@@ -780,8 +780,8 @@ def import_inputs(sources, options: "ImportOptions") -> list[Path]:
 def check_out(out, force: bool, inputs=()) -> Path:
     """The absolute output folder; refuses an existing file or non-empty folder unless ``force``, and with
     ``force`` a folder that holds one of ``inputs`` or anything evpose did not write
-    (:func:`core.owned_files.check_scene_out`)."""
-    from ..owned_files import NotOurs, check_scene_out
+    (:func:`evpose.core.data.owned_files.check_scene_out`)."""
+    from evpose.core.data.owned_files import NotOurs, check_scene_out
 
     try:
         return check_scene_out(out, inputs, force)
@@ -792,7 +792,7 @@ def check_out(out, force: bool, inputs=()) -> Path:
 def _output_failure(exc: OSError, out: Path, staging: Path) -> ImportFailure | None:
     """An ``OSError`` of writing the scene (full disk, read-only, permission) as an ImportFailure naming
     ``out`` (the hidden staging folder is gone by then); None for other errors (e.g. reading an input)."""
-    from ..fileio import is_output_error
+    from evpose.core.data.fileio import is_output_error
 
     if not is_output_error(exc):
         return None
@@ -814,7 +814,7 @@ class SceneBuilder:
     """
 
     def __init__(self, out, ctx: ImportContext):
-        from ..owned_files import StagingFolder
+        from evpose.core.data.owned_files import StagingFolder
 
         self.ctx = ctx
         self.inputs = import_inputs(ctx.report.sources, ctx.options)
@@ -987,7 +987,7 @@ class SceneBuilder:
         return self.out
 
     def _place(self) -> None:
-        from ..owned_files import NotOurs
+        from evpose.core.data.owned_files import NotOurs
 
         try:
             self.staging.commit(self.inputs, self.ctx.options.force)

@@ -21,7 +21,7 @@ Sources (any order; a folder is searched for ``events.h5``, ``events/left/events
 * ``reference``: ``scene.toml`` holds the absolute source path (no copy).
 
 ``link``/``reference`` still read the whole file once to validate it, and refuse a file that would need a
-repair (unsorted, out-of-sensor events): use ``copy`` for those. Note that :class:`~core.events.EventStore`
+repair (unsorted, out-of-sensor events): use ``copy`` for those. Note that :class:`~evpose.core.data.events.EventStore`
 caches an ms index beside an event file that has none (``<file>.msidx.npz``; for ``link`` that lands in the
 scene folder, for ``reference`` beside the source) -- the event file itself is never written.
 """
@@ -31,9 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import (ImportContext, ImportFailure, SceneBuilder, load_camera, read_pose_text, result_summary,
-                     wrap_errors)
-from .epose_bag import collect_objects
+from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, load_camera, read_pose_text, result_summary, wrap_errors)
+from evpose.core.importers.epose_bag import collect_objects
 
 _CHUNK = 1 << 20
 _WRAP = 1 << 32
@@ -136,7 +135,7 @@ def import_dsec(sources, out, ctx: ImportContext) -> dict:
             if opts.events_mode == "copy":
                 sink = sb.event_sink(camera.width, camera.height, expected_events=n)
             else:
-                from .common import EventSink
+                from evpose.core.importers.common import EventSink
 
                 sink = EventSink(ctx, None, camera.width, camera.height)
             wrap_add, prev_last, n_wraps = 0, None, 0

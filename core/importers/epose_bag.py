@@ -42,10 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import CameraModel
-from ..geometry import ROTATION_TOLERANCE
-from .common import (ImportContext, ImportFailure, SceneBuilder, check_T, load_camera, make_trajectory,
-                     parse_objects_arg, result_summary, ros_time_to_us, wrap_errors)
+from evpose.core.data.camera import CameraModel
+from evpose.core.data.geometry import ROTATION_TOLERANCE
+from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, check_T, load_camera, make_trajectory, parse_objects_arg, result_summary, ros_time_to_us, wrap_errors)
 
 EVENT_MSG = "uint16 x\nuint16 y\ntime ts\nbool polarity\n"
 EVENT_ARRAY_MSG = "Header header\nuint32 height\nuint32 width\nEvent[] events\n"
@@ -59,7 +58,7 @@ EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u
 #: from them): their rotation blocks are rounded to 3-5 digits, giving residuals up to 0.145 (five_obj_clut /
 #: nine_hole_peg); the one typo (three_obj / potted_meat_can, 0.51) stays refused without ``--repair``. Values above
 #: the core tolerance are projected, reported, and written with ``repair_rotation = true``. User-supplied
-#: rotations (``--objects``) use the core tolerance (:data:`core.geometry.ROTATION_TOLERANCE`).
+#: rotations (``--objects``) use the core tolerance (:data:`evpose.core.data.geometry.ROTATION_TOLERANCE`).
 EPOSE_PUBLISHED_TOLERANCE = 0.2
 
 #: Object names published in the E-POSE multi-object scenes -> the YCB names used for meshes and scenes.

@@ -48,12 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import DAVIS346_DIST, DAVIS346_K, CameraError, CameraModel
-from ..geometry import ROTATION_TOLERANCE
-from .common import (ImportContext, ImportFailure, SceneBuilder, check_T, derive_camera_trajectory, float_to_us,
-                     load_camera, make_trajectory, poses_from_matrices, resolve_time_unit, result_summary,
-                     wrap_errors)
-from .epose_bag import EPOSE_PUBLISHED_TOLERANCE, collect_objects, find_mesh, load_epose_assets
+from evpose.core.data.camera import DAVIS346_DIST, DAVIS346_K, CameraError, CameraModel
+from evpose.core.data.geometry import ROTATION_TOLERANCE
+from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, check_T, derive_camera_trajectory, float_to_us, load_camera, make_trajectory, poses_from_matrices, resolve_time_unit, result_summary, wrap_errors)
+from evpose.core.importers.epose_bag import (EPOSE_PUBLISHED_TOLERANCE, collect_objects, find_mesh, load_epose_assets)
 
 _NAME = re.compile(r"^(\d+)_data\.mat$")
 _FIELDS = ("events", "pose", "time", "intrinsicMatrix", "cls_index", "cameraPose")

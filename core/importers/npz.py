@@ -20,10 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import CameraError, CameraModel
-from .common import (ImportContext, ImportFailure, SceneBuilder, TIME_UNITS, float_to_us, load_camera,
-                     make_trajectory, poses_from_matrices, resolve_time_unit, result_summary, wrap_errors)
-from .epose_bag import collect_objects
+from evpose.core.data.camera import CameraError, CameraModel
+from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, TIME_UNITS, float_to_us, load_camera, make_trajectory, poses_from_matrices, resolve_time_unit, result_summary, wrap_errors)
+from evpose.core.importers.epose_bag import collect_objects
 
 _CHUNK = 1 << 21
 EVENT_KEYS = ("x", "y", "t", "p")

@@ -25,9 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import (ImportContext, ImportFailure, SceneBuilder, TIME_UNITS, float_to_us, load_camera,
-                     read_pose_text, resolve_time_unit, result_summary, wrap_errors)
-from .epose_bag import collect_objects
+from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, TIME_UNITS, float_to_us, load_camera, read_pose_text, resolve_time_unit, result_summary, wrap_errors)
+from evpose.core.importers.epose_bag import collect_objects
 
 BLOCK_BYTES = 4 << 20
 _POW10 = np.array([10**k for k in range(19)], dtype=np.int64)

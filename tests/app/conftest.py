@@ -8,8 +8,8 @@ def window(qtbot, tmp_path, monkeypatch):
     """A main window with private settings and non-blocking dialogs."""
     from PySide6 import QtCore
 
-    from app.main_window import MainWindow
-    from app.settings import Settings
+    from evpose.app.main_window import MainWindow
+    from evpose.app.settings import Settings
 
     if not os.environ.get("DISPLAY"):
         pytest.skip("the main window embeds an OpenGL view: needs an X display (Xvfb)")

@@ -9,14 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from core.corrections import Corrections
+from evpose.core.document.corrections import Corrections
 
 EVPOSE = str(Path(sys.executable).with_name("evpose"))
 
 #: Another program: load corrections.json, change one field, save (through the checked save path).
 OTHER = textwrap.dedent('''
     import sys
-    from core.corrections import Corrections
+    from evpose.core.document.corrections import Corrections
     path, key, value = sys.argv[1], sys.argv[2], sys.argv[3]
     try:
         doc = Corrections.load(path)

@@ -5,7 +5,7 @@ import json
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
-from core.synth import load_ground_truth
+from evpose.core.sim.synth import load_ground_truth
 
 
 def wait_frame(qtbot, window):
@@ -20,7 +20,7 @@ def test_fix_offset_through_the_panel(qtbot, window, scene_copy):
     s = window.controller.open_scene(scene_copy)
     assert s is not None and window.windowTitle().startswith("evpose — ")
     # the fastest windows (a clock offset matters most there): share of events on the dilated masks
-    from core.session import timeline_data
+    from evpose.core.session import timeline_data
 
     td = timeline_data(s.scene, bin_us=10_000)
     fastest = np.argsort(np.where(td.speed_valid, td.speed_mps, 0))[-6:]
@@ -148,7 +148,7 @@ def test_auto_sync_refine_and_scores_are_one_undo_step_each(qtbot, window, scene
     window.actions_by_name["redo"].trigger()
 
     # Refine the selected object from events: accepted as one step, and it got closer to the truth
-    from core.geometry import pose_error
+    from evpose.core.data.geometry import pose_error
 
     s.select("box")
     T_true = np.asarray(gt["objects"]["box"]["T_base_obj"])
@@ -192,9 +192,9 @@ def test_auto_sync_then_edges_is_a_second_undo_step(qtbot, window, scene_copy):
     """Auto, accepted with "then refine from edges": the edge fit starts from the estimate and is
     its own proposal and undo step. The tiny scene's object poses are 5 mm / 3 deg off, so they
     are set to the truth first (the edges assume right poses)."""
-    from core.corrections import Corrections
-    from core.geometry import inv_T
-    from core.scene import Scene
+    from evpose.core.document.corrections import Corrections
+    from evpose.core.data.geometry import inv_T
+    from evpose.core.data.scene import Scene
 
     gt = load_ground_truth(scene_copy)
     sc = Scene.open(scene_copy)

@@ -3,7 +3,7 @@ second mark over a window replaces the first, stale marks are shown as stale in 
 the timeline, and the export's done message counts the marked windows it could not use."""
 from PySide6 import QtCore
 
-from app.controller import export_done_text
+from evpose.app.controller import export_done_text
 
 
 def _grid(s, m):

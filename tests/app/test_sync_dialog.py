@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from core.sync import SLOW_STD_NOTE_US, SyncResult
+from evpose.core.align.sync import SLOW_STD_NOTE_US, SyncResult
 
 
 def _result(std, reliable=True):
@@ -23,7 +23,7 @@ def _result(std, reliable=True):
 def test_sync_dialog_standard_error(qtbot, std, band, verdict):
     from PySide6 import QtWidgets
 
-    from app.align import SyncDialog
+    from evpose.app.align import SyncDialog
 
     dlg = SyncDialog(None, _result(std), 0, 0.0)
     qtbot.addWidget(dlg)
@@ -41,7 +41,7 @@ def test_sync_dialog_standard_error(qtbot, std, band, verdict):
 
 
 def test_unreliable_result_cannot_be_accepted(qtbot):
-    from app.align import SyncDialog
+    from evpose.app.align import SyncDialog
 
     dlg = SyncDialog(None, _result(None, reliable=False), 0, 0.0)
     qtbot.addWidget(dlg)
@@ -49,7 +49,7 @@ def test_unreliable_result_cannot_be_accepted(qtbot):
 
 
 def test_then_edges_choice(qtbot):
-    from app.align import SyncDialog
+    from evpose.app.align import SyncDialog
 
     dlg = SyncDialog(None, _result(150.0), 0, 0.0, has_objects=True)
     qtbot.addWidget(dlg)
@@ -61,7 +61,7 @@ def test_then_edges_choice(qtbot):
 
 
 def _offset_result(accepted, skew_estimated=False):
-    from core.refine import RefineResult
+    from evpose.core.align.refine import RefineResult
 
     return RefineResult("offset", None, offset_us=-57_640 if accepted else -58_000,
                         offset_std_us=85.0 if accepted else None, skew_ppm=12.5 if accepted else None,
@@ -74,7 +74,7 @@ def _offset_result(accepted, skew_estimated=False):
 def test_clock_refine_dialog(qtbot, accepted, fitted):
     from PySide6 import QtWidgets
 
-    from app.align import ClockRefineDialog
+    from evpose.app.align import ClockRefineDialog
 
     dlg = ClockRefineDialog(None, _offset_result(accepted, fitted), -58_000, 0.0)
     qtbot.addWidget(dlg)

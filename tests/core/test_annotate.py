@@ -3,10 +3,10 @@ import cv2
 import numpy as np
 import pytest
 
-from core.annotate import Annotator, Request, count_windows, label_time, mask_bbox, time_windows
-from core.geometry import apply_T, inv_T
-from core.scene import Scene
-from core.synth import load_ground_truth
+from evpose.core.label.annotate import Annotator, Request, count_windows, label_time, mask_bbox, time_windows
+from evpose.core.data.geometry import apply_T, inv_T
+from evpose.core.data.scene import Scene
+from evpose.core.sim.synth import load_ground_truth
 
 
 @pytest.fixture
@@ -107,7 +107,7 @@ def test_segmented_events_fall_on_their_mask(scene):
 
 def test_products_not_requested_are_not_computed(scene, monkeypatch):
     calls = {"render": 0, "full": 0}
-    from core.raster import Rasterizer
+    from evpose.core.label.raster import Rasterizer
 
     orig_render, orig_full = Rasterizer.render_objects, Rasterizer.full_mask
 
@@ -129,7 +129,7 @@ def test_products_not_requested_are_not_computed(scene, monkeypatch):
 
 
 def test_single_object_never_renders_a_full_mask_separately(scene, monkeypatch):
-    from core.raster import Rasterizer
+    from evpose.core.label.raster import Rasterizer
 
     def boom(*a, **k):
         raise AssertionError("full mask rendered for an object nothing can occlude")
@@ -144,7 +144,7 @@ def test_single_object_never_renders_a_full_mask_separately(scene, monkeypatch):
 def test_full_masks_are_rendered_exactly_when_something_hides_the_object(scene, monkeypatch):
     """The second rasterisation is skipped when no other object's pixel lies in the object's
     projected box, and the result is still exact: compare with a direct full render."""
-    from core.raster import Rasterizer
+    from evpose.core.label.raster import Rasterizer
 
     rendered = []
     orig_full = Rasterizer.full_mask

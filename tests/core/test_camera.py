@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.camera import DAVIS346_DIST, DAVIS346_K, CameraError, CameraModel
-from core.geometry import apply_T, make_T
+from evpose.core.data.camera import DAVIS346_DIST, DAVIS346_K, CameraError, CameraModel
+from evpose.core.data.geometry import apply_T, make_T
 
 
 @pytest.fixture

@@ -3,9 +3,9 @@ import json
 import numpy as np
 import pytest
 
-from core.corrections import Corrections, CorrectionsError, ReviewMark
-from core.geometry import T_from_rotvec
-from core.history import Group, History, SetValue
+from evpose.core.document.corrections import Corrections, CorrectionsError, ReviewMark
+from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.document.history import Group, History, SetValue
 
 
 class FakeClock:
@@ -35,7 +35,7 @@ def test_save_load_roundtrip_is_exact(tmp_path):
 def test_save_is_atomic_and_keeps_old_file_on_failure(tmp_path, monkeypatch):
     p = tmp_path / "corrections.json"
     Corrections(offset_us=5).save(p)
-    import core.fileio as fio
+    import evpose.core.data.fileio as fio
 
     def boom(*a, **k):
         raise OSError("disk full")

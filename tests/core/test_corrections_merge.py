@@ -1,11 +1,11 @@
-"""Three-way merge of corrections (core.corrections_merge): per field, review marks as a set."""
+"""Three-way merge of corrections (evpose.core.document.corrections_merge): per field, review marks as a set."""
 import numpy as np
 import pytest
 
-from core.corrections import Corrections, ReviewMark
-from core.corrections_merge import CorrectionsConflict, merge
-from core.geometry import T_from_rotvec
-from core.review import insert_mark
+from evpose.core.document.corrections import Corrections, ReviewMark
+from evpose.core.document.corrections_merge import CorrectionsConflict, merge
+from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.document.review import insert_mark
 
 
 def _doc(**kw):

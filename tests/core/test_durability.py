@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import core.fileio as fileio
-from core.export import common
+import evpose.core.data.fileio as fileio
+from evpose.core.export import common
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc/self/fd")
 
@@ -106,7 +106,7 @@ def test_atomic_write_fsyncs_file_then_renames_then_fsyncs_folder(tmp_path, monk
 
 
 def test_atomic_batch_fsyncs_each_file_logs_it_then_renames(tmp_path, monkeypatch):
-    from core.owned_files import OwnedLog
+    from evpose.core.data.owned_files import OwnedLog
 
     rec = Recorder(monkeypatch)
     log = OwnedLog(tmp_path, "export", "test")
@@ -125,7 +125,7 @@ def test_atomic_batch_fsyncs_each_file_logs_it_then_renames(tmp_path, monkeypatc
 
 
 def test_event_writer_close(tmp_path, monkeypatch):
-    from core.events import EventArray, EventWriter
+    from evpose.core.data.events import EventArray, EventWriter
 
     rec = Recorder(monkeypatch)
     target = tmp_path / "events.h5"
@@ -136,7 +136,7 @@ def test_event_writer_close(tmp_path, monkeypatch):
 
 
 def test_scene_folder_synced_before_it_is_renamed_into_place(tmp_path, monkeypatch):
-    from core.owned_files import StagingFolder
+    from evpose.core.data.owned_files import StagingFolder
 
     rec = Recorder(monkeypatch)
     st = StagingFolder(tmp_path / "scene", "import", "test")
@@ -162,7 +162,7 @@ def test_export_batch_mode_syncs_files_before_journaling_them(tiny_scene_dir, tm
     """"batch" durability: every journal line that the OS has (written, or fsynced) names only windows whose
     files were renamed before a syncfs that came before. Checked at every syncfs and every journal fsync,
     on the journal's content as the OS sees it, so a buffered writer that spills early is caught too."""
-    from core.export import export_scene
+    from evpose.core.export import export_scene
 
     out = tmp_path / "ex"
     journal = out / ".evpose" / "journal.jsonl"
@@ -205,7 +205,7 @@ def test_export_batch_mode_syncs_files_before_journaling_them(tiny_scene_dir, tm
 
 
 def test_export_file_mode_fsyncs_every_file(tiny_scene_dir, tmp_path, monkeypatch):
-    from core.export import export_scene
+    from evpose.core.export import export_scene
 
     out = tmp_path / "ex"
     rec = Recorder(monkeypatch)
@@ -217,7 +217,7 @@ def test_export_file_mode_fsyncs_every_file(tiny_scene_dir, tmp_path, monkeypatc
 
 
 def test_h5_export_fsyncs_the_partial_before_renaming_it(tiny_scene_dir, tmp_path, monkeypatch):
-    from core.export import export_scene
+    from evpose.core.export import export_scene
 
     import h5py
 
@@ -248,8 +248,8 @@ def test_journal_cut_at_every_byte_of_its_last_line(tiny_scene_dir, tmp_path):
     """The export journal cut at each byte boundary of its last line (a crash while appending): the resume
     redoes that window unless the line is whole JSON, leaves a journal that parses entirely, and the
     folder ends byte-identical to an uninterrupted export."""
-    from core.export import export_scene
-    from core.scene import Scene
+    from evpose.core.export import export_scene
+    from evpose.core.data.scene import Scene
 
     out = tmp_path / "ex"
     kw = dict(window_us=200_000, objects="box")

@@ -17,8 +17,8 @@ from evpose_testing import msidx_cache_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import core.events as ce
-from core.events import EventFileError, EventStore
+import evpose.core.data.events as ce
+from evpose.core.data.events import EventFileError, EventStore
 
 W, H = 346, 260
 

@@ -1,4 +1,4 @@
-"""Tests of core.events: EventArray, EventStore (lazy ms-indexed reader), EventWriter (atomic streaming writer)."""
+"""Tests of evpose.core.data.events: EventArray, EventStore (lazy ms-indexed reader), EventWriter (atomic streaming writer)."""
 import hashlib
 import os
 import tempfile
@@ -13,9 +13,8 @@ from evpose_testing import msidx_cache_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import core.events as ce
-from core.events import (Cancelled, EventArray, EventFileError, EventStore, EventWriter,
-                         write_events_h5)
+import evpose.core.data.events as ce
+from evpose.core.data.events import (Cancelled, EventArray, EventFileError, EventStore, EventWriter, write_events_h5)
 
 
 pytestmark = pytest.mark.usefixtures("private_cache")

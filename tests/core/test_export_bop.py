@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from core.corrections import ReviewMark
-from core.export import export_scene
-from core.represent import undistorter_for
-from core.scene import Scene
-from core.synth import load_ground_truth
+from evpose.core.document.corrections import ReviewMark
+from evpose.core.export import export_scene
+from evpose.core.label.represent import undistorter_for
+from evpose.core.data.scene import Scene
+from evpose.core.sim.synth import load_ground_truth
 
 
 def read_trajectory(scene_dir):
@@ -256,7 +256,7 @@ def test_K_new_option_and_scene_id(tiny_scene_dir, tmp_path):
 
 def test_resume_after_cancel_identical(tiny_scene_dir, tmp_path):
     """The per-window records come from the journal on resume: the aggregate JSON files are identical."""
-    from core.events import Cancelled
+    from evpose.core.data.events import Cancelled
 
     scene_dir = tmp_path / "scene"
     shutil.copytree(tiny_scene_dir, scene_dir)

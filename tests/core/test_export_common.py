@@ -10,13 +10,13 @@ import cv2
 import pytest
 from scipy.io import loadmat
 
-from core.annotate import Window
-from core.corrections import ReviewMark
-from core.events import Cancelled
-from core.export import ExportError, export_scene
-from core.export.cli import add_export_parser
-from core.export.common import UNLABELED_AFTER, UNLABELED_BEFORE, verified_mask
-from core.scene import Scene
+from evpose.core.label.annotate import Window
+from evpose.core.document.corrections import ReviewMark
+from evpose.core.data.events import Cancelled
+from evpose.core.export import ExportError, export_scene
+from evpose.app.cli.export import add_export_parser
+from evpose.core.export.common import UNLABELED_AFTER, UNLABELED_BEFORE, verified_mask
+from evpose.core.data.scene import Scene
 
 
 # ----------------------------------------------------------------------------------------- helpers
@@ -81,7 +81,7 @@ def test_verified_mask_definition():
     # a window reaching 1 us beyond the verified marks is not fully covered
     assert not verified_mask([W(0, 0, 101)], [ReviewMark(0, 100, "verified")], ["a"])[0]
     # the mask agrees with Corrections.review_status at every microsecond
-    from core.corrections import Corrections
+    from evpose.core.document.corrections import Corrections
 
     c = Corrections(reviews=reviews)
     for w, ok in zip(wins, got):
@@ -149,7 +149,7 @@ def test_cancel_resume_identical_no_temp(small_scene, tmp_path):
 
 def test_keyboard_interrupt_leaves_no_partial_files(small_scene, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    from core.export import common
+    from evpose.core.export import common
 
     orig = common.AtomicBatch.commit
     calls = {"n": 0}

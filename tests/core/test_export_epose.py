@@ -14,12 +14,12 @@ from scipy.io import loadmat
 from scipy.ndimage import binary_fill_holes
 from scipy.spatial.transform import Rotation, Slerp
 
-from core.corrections import ReviewMark
-from core.events import EventStore
-from core.export import export_scene
-from core.export.epose import EPOSE_CORNER_ORDER
-from core.scene import Scene
-from core.synth import load_ground_truth
+from evpose.core.document.corrections import ReviewMark
+from evpose.core.data.events import EventStore
+from evpose.core.export import export_scene
+from evpose.core.export.epose import EPOSE_CORNER_ORDER
+from evpose.core.data.scene import Scene
+from evpose.core.sim.synth import load_ground_truth
 
 OFFSET_US = 20_000  # the tiny scene's true clock offset (the manifest prior is 0)
 
@@ -275,8 +275,8 @@ def test_defect_margin_shifts_instead_of_enlarging(tiny_scene_dir, tmp_path):
 def test_defect_three_channel_accumulators_leak(exported):
     """Original: the 3-channel accumulators were never reset, so every image held all earlier windows.
     Each image must be a function of its own window's events: zero wherever the window has no event,
-    non-zero wherever it has one, equal to core.represent on that window alone."""
-    from core.represent import three_channel, three_channel_rgb
+    non-zero wherever it has one, equal to evpose.core.label.represent on that window alone."""
+    from evpose.core.label.represent import three_channel, three_channel_rgb
 
     scene_dir, out, _ = exported
     store = EventStore(Path(scene_dir) / "events.h5")

@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 from test_importers import (src, write_bag, write_dsec, write_dsec_yaml, write_epose_export, write_npz,  # noqa: F401
                             write_rpg, write_tum, write_ycbev)
 
-from core.events import EventStore
-from core.importers import ImportFailure, import_scene
-from core.scene import load_manifest
-from core.trajectory import Trajectory
+from evpose.core.data.events import EventStore
+from evpose.core.importers import ImportFailure, import_scene
+from evpose.core.data.scene import load_manifest
+from evpose.core.data.trajectory import Trajectory
 
 N_EVENTS = 3000
 

@@ -10,10 +10,10 @@ import pytest
 from test_importers import (assert_events_equal, assert_traj_equal, no_leftovers, read_scene, src,  # noqa: F401
                             write_bag, write_epose_export, write_npz, write_rpg)
 
-from core.events import Cancelled, EventArray
-from core.importers import ImportFailure, import_scene
-from core.importers.common import guess_time_unit, parse_yaml_subset
-from core.trajectory import Trajectory
+from evpose.core.data.events import Cancelled, EventArray
+from evpose.core.importers import ImportFailure, import_scene
+from evpose.core.importers.common import guess_time_unit, parse_yaml_subset
+from evpose.core.data.trajectory import Trajectory
 
 
 def _npz(src, tmp_path, **kw):
@@ -308,7 +308,7 @@ def test_empty_topics_and_files(src, tmp_path):
 
 
 def test_bag_header_stamps_zero_fall_back_to_record_time(src, tmp_path):
-    from core.importers.epose_bag import encode_pose_stamped, parse_pose_stamped
+    from evpose.core.importers.epose_bag import encode_pose_stamped, parse_pose_stamped
 
     t, v = parse_pose_stamped(encode_pose_stamped(1_500_000_000_123_456_789, [1, 2, 3], [0, 0, 0, 1], frame_id="b"))
     assert t == 1_500_000_000_123_457 and v.tolist() == [1, 2, 3, 0, 0, 0, 1]
@@ -420,7 +420,7 @@ flag: true
 
 
 def test_camera_file_formats(src, tmp_path):
-    from core.importers.common import ImportContext, load_camera
+    from evpose.core.importers.common import ImportContext, load_camera
 
     ctx = ImportContext("t", [], log=None)
     K, d = src.cam.K, src.cam.dist
@@ -443,7 +443,7 @@ def test_camera_file_formats(src, tmp_path):
 
 def test_event_sink_bounded_stream_merge():
     """Overlapping chunks over a long stream: output sorted and complete, memory held back stays bounded."""
-    from core.importers.common import EventSink, ImportContext, ImportOptions
+    from evpose.core.importers.common import EventSink, ImportContext, ImportOptions
 
     class Collect:
         def __init__(self):

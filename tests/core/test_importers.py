@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.events import EventStore
-from core.geometry import inv_T, make_T, pose_error
-from core.importers import REPORT_FILENAME, ImportFailure, import_scene
-from core.scene import Scene, load_manifest
-from core.trajectory import Trajectory
+from evpose.core.data.events import EventStore
+from evpose.core.data.geometry import inv_T, make_T, pose_error
+from evpose.core.importers import REPORT_FILENAME, ImportFailure, import_scene
+from evpose.core.data.scene import Scene, load_manifest
+from evpose.core.data.trajectory import Trajectory
 
 TOL = 1e-9
 
@@ -106,8 +106,7 @@ def write_bag(path: Path, ev, traj, *, msg_events=20_000, width=None, height=Non
     """ROS1 bag with rosbags' writer; messages serialised by rosbags (per-event objects) unless numpy_encode."""
     from rosbags.rosbag1 import Writer
 
-    from core.importers.epose_bag import (EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, dvs_typestore,
-                                          encode_event_array, encode_pose_stamped)
+    from evpose.core.importers.epose_bag import (EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, dvs_typestore, encode_event_array, encode_pose_stamped)
 
     ts = dvs_typestore()
     T = ts.types
@@ -296,7 +295,7 @@ def write_ycbev(root: Path, src: Src, *, n_frames=20, c2ev=True, seq="seq01"):
     import trimesh
     import zstandard
 
-    from core.importers.ycbev import pack_events
+    from evpose.core.importers.ycbev import pack_events
 
     seqd = root / seq
     seqd.mkdir(parents=True, exist_ok=True)
@@ -371,7 +370,7 @@ def test_bag_compressed_chunks(src, tmp_path, compression):
 
 
 def test_event_array_parser_matches_rosbags(src):
-    from core.importers.epose_bag import EVENT_ARRAY_TYPE, dvs_typestore, encode_event_array, parse_event_array
+    from evpose.core.importers.epose_bag import (EVENT_ARRAY_TYPE, dvs_typestore, encode_event_array, parse_event_array)
 
     ts = dvs_typestore()
     T = ts.types
@@ -399,7 +398,7 @@ def test_event_array_parser_matches_rosbags(src):
 
 
 def test_ros_time_rounding():
-    from core.importers.common import ros_time_to_us
+    from evpose.core.importers.common import ros_time_to_us
 
     np.testing.assert_array_equal(ros_time_to_us([1, 1, 1, 1, 0], [499, 500, 1_499, 999_999_999, 0]),
                                   [1_000_000, 1_000_001, 1_000_001, 2_000_000, 0])
@@ -409,7 +408,7 @@ def test_bag_assets_five_obj_clut(src, assets_dir, tmp_path):
     """Real assets: objects, meshes, T_base_obj and the prior offset of five_obj_clut/R_05_ml land in the manifest."""
     rng = np.random.default_rng(0)
     n = 30_000
-    from core.events import EventArray
+    from evpose.core.data.events import EventArray
 
     t = np.sort(rng.integers(0, 300_000, n)) + 1_600_000_000_000_000
     ev = EventArray(rng.integers(0, 346, n), rng.integers(0, 260, n), t, rng.integers(0, 2, n))
@@ -440,7 +439,7 @@ def test_bag_assets_five_obj_clut(src, assets_dir, tmp_path):
 
 def test_bag_assets_typo_refused_then_repaired(src, assets_dir, tmp_path):
     rng = np.random.default_rng(0)
-    from core.events import EventArray
+    from evpose.core.data.events import EventArray
 
     t = np.arange(1000, dtype=np.int64) * 100 + 10**15
     ev = EventArray(rng.integers(0, 346, 1000), rng.integers(0, 260, 1000), t, rng.integers(0, 2, 1000))
@@ -465,8 +464,8 @@ def test_bag_assets_typo_refused_then_repaired(src, assets_dir, tmp_path):
 def test_epose_name_matching(assets_dir, tmp_path):
     import csv
 
-    from core.importers.common import ImportContext
-    from core.importers.epose_bag import _time_shift, match_name
+    from evpose.core.importers.common import ImportContext
+    from evpose.core.importers.epose_bag import _time_shift, match_name
 
     scenes = json.loads((assets_dir / "scenes.json").read_text())["scenes"]
     assert match_name("bleach", scenes, file="f", record="r", fld="f")[0] == "bleach_cleanser"
@@ -592,7 +591,7 @@ def test_rpg_round_trip(src, tmp_path):
 
 
 def test_rpg_exact_decimal_seconds(tmp_path):
-    from core.importers.rpg import mantissa_to_us, parse_columns
+    from evpose.core.importers.rpg import mantissa_to_us, parse_columns
 
     text = (b"0.0000005 1 2 1\n0.0000015 3 4 0\n1468940293.951234567 5 6 1\n-0.0000005 0 0 0\n"
             b"12 7 8 1\n0.000001 9 9 0\n")
@@ -663,7 +662,7 @@ def test_npz_round_trip(src, tmp_path, variant):
 def _parser():
     import argparse
 
-    from core.importers.cli import add_import_parser
+    from evpose.app.cli.importers import add_import_parser
 
     p = argparse.ArgumentParser(prog="evpose")
     add_import_parser(p.add_subparsers(dest="command", required=True))
@@ -723,7 +722,7 @@ def test_bag_unfamiliar_event_definition_uses_rosbags(src, tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from core.importers.epose_bag import EVENT_ARRAY_MSG, EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, encode_pose_stamped
+    from evpose.core.importers.epose_bag import (EVENT_ARRAY_MSG, EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, encode_pose_stamped)
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     ts.register({**get_types_from_msg("uint16 x\nuint16 y\ntime ts\nbool polarity\nuint8 extra\n", "dvs_msgs/msg/Event"),

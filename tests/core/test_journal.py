@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from core.corrections import Corrections
-from core.geometry import T_from_rotvec
-from core.session import Session
+from evpose.core.document.corrections import Corrections
+from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.session import Session
 
 
 def _edited_session(scene_dir) -> Session:

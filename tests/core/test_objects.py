@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from core.objects import BBOX_EDGES, ObjectModel, ObjectModelError, box_model, cylinder_model
+from evpose.core.data.objects import BBOX_EDGES, ObjectModel, ObjectModelError, box_model, cylinder_model
 
 
 def test_bbox_margin_enlarges_on_every_side():

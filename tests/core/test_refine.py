@@ -1,4 +1,4 @@
-"""Refinement from events (core.refine): object pose corrections on the tiny scene and on a real
+"""Refinement from events (evpose.core.align.refine): object pose corrections on the tiny scene and on a real
 E-POSE mesh, the clock offset from edges, never-worse acceptance, cancel/progress, the CLI."""
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ from contextlib import redirect_stdout
 import numpy as np
 import pytest
 
-from core import refine
-from core.corrections import Corrections
-from core.events import Cancelled
-from core.geometry import inv_T, pose_error
-from core.objects import box_model
-from core.scene import Scene
-from core.synth import load_ground_truth
+from evpose.core.align import refine
+from evpose.core.document.corrections import Corrections
+from evpose.core.data.events import Cancelled
+from evpose.core.data.geometry import inv_T, pose_error
+from evpose.core.data.objects import box_model
+from evpose.core.data.scene import Scene
+from evpose.core.sim.synth import load_ground_truth
 
 FAST = refine.RefineParams(n_windows=12)
 
@@ -83,7 +83,7 @@ def test_refine_box_on_tiny_scene(tiny):
 
 def test_refine_real_mesh(models_dir, tmp_path_factory):
     from evpose_testing import half_davis_camera
-    from core.synth import SynthConfig, generate
+    from evpose.core.sim.synth import SynthConfig, generate
 
     out = tmp_path_factory.mktemp("refine") / "sugar"
     generate(out, SynthConfig(objects=("sugar_box",), mesh_dir=str(models_dir), trajectory="B", speed_mps=0.5,
@@ -141,7 +141,7 @@ def test_refine_offset_from_edges(tiny):
     far = refine.refine_offset(scene.with_corrections(doc_far), params=FAST, half_range_us=40_000)
     assert far.accepted and abs(far.offset_us - gt["clock"]["offset_us"]) < 600
     # applied as one undo step (offset and skew)
-    from core.history import History
+    from evpose.core.document.history import History
 
     h = History(shifted.corrections)
     assert refine.apply_offset_result(h, shifted, res) and len(h) == 1
@@ -223,7 +223,7 @@ def test_choose_windows(tiny):
     # ... but an explicit threshold is kept
     assert refine.choose_windows(scene, 10, 10_000, ["box"], min_px_s=1e6) == []
     # the offset refinement lengthens windows on slow sequences only
-    from core.sync import scene_motion_proxy
+    from evpose.core.align.sync import scene_motion_proxy
 
     proxy = scene_motion_proxy(scene)
     assert refine.offset_window_us(proxy, 10_000) == 10_000
@@ -231,7 +231,7 @@ def test_choose_windows(tiny):
 
 
 def test_cli_refine_apply(tiny_scene_dir, tmp_path):
-    from core.align_cli import add_align_parsers
+    from evpose.app.cli.align import add_align_parsers
 
     folder = tmp_path / "scene"
     shutil.copytree(tiny_scene_dir, folder)
@@ -253,7 +253,7 @@ def test_cli_refine_apply(tiny_scene_dir, tmp_path):
         assert np.allclose(doc.object_delta("box"), np.asarray(box["dT_base"]))
     assert doc.offset_us == gt["clock"]["offset_us"]
     args = p.parse_args(["refine", str(folder), "--object", "nope"])
-    from core.cli import CliError
+    from evpose.app.cli.main import CliError
 
     with pytest.raises(CliError):
         args.func(args)

@@ -4,14 +4,13 @@ import json
 
 import pytest
 
-from core.annotate import Window
-from core.corrections import Corrections, ReviewMark
-from core.export import export_scene
-from core.export.cli import summary_text
-from core.export.common import (REVIEW_MIXED, REVIEW_NO_LABEL, REVIEW_PARTLY, REVIEW_STALE, review_usage,
-                                verified_mask)
-from core.review import MarkState, effective_status, grid_window, insert_mark, normalize_marks
-from core.session import Session
+from evpose.core.label.annotate import Window
+from evpose.core.document.corrections import Corrections, ReviewMark
+from evpose.core.export import export_scene
+from evpose.app.cli.export import summary_text
+from evpose.core.export.common import (REVIEW_MIXED, REVIEW_NO_LABEL, REVIEW_PARTLY, REVIEW_STALE, review_usage, verified_mask)
+from evpose.core.document.review import MarkState, effective_status, grid_window, insert_mark, normalize_marks
+from evpose.core.session import Session
 
 
 # ---------------------------------------------------------------------------- the mark algebra
@@ -218,7 +217,7 @@ def test_export_counts_unused_marked_windows_and_says_why(scene_copy, tmp_path):
     s2 = export_scene(scene_copy, "epose", tmp_path / "out2", only_verified=True, objects="box", include_stale=True)
     assert s2.written == 5 and s2.review_unused_reasons == {REVIEW_PARTLY: 2, REVIEW_MIXED: 1}
     # ... and it cannot be mixed into the first folder (its fingerprint differs)
-    from core.export.common import ExportError
+    from evpose.core.export.common import ExportError
 
     with pytest.raises(ExportError):
         export_scene(scene_copy, "epose", out, only_verified=True, objects="box", include_stale=True)

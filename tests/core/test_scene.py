@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import tomli_w
 
-from core.events import EventArray, write_events_h5
-from core.geometry import T_from_rotvec, apply_T, inv_T
-from core.history import History
-from core.scene import Scene, SceneError, load_manifest
-from core.trajectory import Trajectory
+from evpose.core.data.events import EventArray, write_events_h5
+from evpose.core.data.geometry import T_from_rotvec, apply_T, inv_T
+from evpose.core.document.history import History
+from evpose.core.data.scene import Scene, SceneError, load_manifest
+from evpose.core.data.trajectory import Trajectory
 
 T0 = 1_700_000_000_000_000
 

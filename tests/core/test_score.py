@@ -1,4 +1,4 @@
-"""Alignment score (core.score): unit cases on hand-made label maps, every window of the tiny
+"""Alignment score (evpose.core.align.score): unit cases on hand-made label maps, every window of the tiny
 synthetic scene (true vs erroneous poses), undefined scores for empty windows and objects out
 of view, the CLI."""
 from __future__ import annotations
@@ -12,10 +12,10 @@ from contextlib import redirect_stdout
 import numpy as np
 import pytest
 
-from core import score
-from core.events import Cancelled, EventArray
-from core.scene import Scene
-from core.synth import load_ground_truth
+from evpose.core.align import score
+from evpose.core.data.events import Cancelled, EventArray
+from evpose.core.data.scene import Scene
+from evpose.core.sim.synth import load_ground_truth
 
 P = score.ScoreParams(near_px=5, trunc_px=5, sigma_px=1.0, min_events=10, min_pixels=16)
 
@@ -141,7 +141,7 @@ def test_object_out_of_view_is_masked_not_zero(tiny):
 
 
 def scene_windows(scene):
-    from core.annotate import time_windows
+    from evpose.core.label.annotate import time_windows
 
     return time_windows(scene.events, 10_000)
 
@@ -153,7 +153,7 @@ def test_cancel(tiny):
 
 
 def test_cli_score_json(tiny_scene_dir):
-    from core.align_cli import add_align_parsers
+    from evpose.app.cli.align import add_align_parsers
 
     p = argparse.ArgumentParser(prog="evpose")
     add_align_parsers(p.add_subparsers(dest="command", required=True))

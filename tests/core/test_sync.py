@@ -1,4 +1,4 @@
-"""Clock synchronisation (core.sync): accuracy on rate-level and rendered synthetic scenes, the
+"""Clock synchronisation (evpose.core.align.sync): accuracy on rate-level and rendered synthetic scenes, the
 E-POSE minima baseline, reliability decisions and the stiff cases of DESIGN section 7."""
 from __future__ import annotations
 
@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core import sync
-from core.camera import CameraModel
-from core.events import EventArray, EventWriter, write_events_h5
-from core.history import History
-from core.scene import Scene, SceneManifest
-from core.trajectory import ClockModel, Trajectory
+from evpose.core.align import sync
+from evpose.core.data.camera import CameraModel
+from evpose.core.data.events import EventArray, EventWriter, write_events_h5
+from evpose.core.document.history import History
+from evpose.core.data.scene import Scene, SceneManifest
+from evpose.core.data.trajectory import ClockModel, Trajectory
 
 T0_POSE = 1_700_000_000_000_000   # epoch pose clock: precision problems would show
 FX = 60.0
@@ -374,7 +374,7 @@ def test_masked_ncc_matches_direct_computation():
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """A low-resolution (87x65) rendered scene: for synchronisation only the event rate matters."""
-    from core.synth import SynthConfig, generate
+    from evpose.core.sim.synth import SynthConfig, generate
 
     cam = CameraModel.davis346()
     s = 87 / 346
@@ -391,14 +391,14 @@ def rendered(tmp_path_factory):
 
 
 def test_rendered_scene_offset_and_baseline(rendered):
-    from core.synth import load_ground_truth
+    from evpose.core.sim.synth import load_ground_truth
 
     true_off = load_ground_truth(rendered)["clock"]["offset_us"]
     with _Open(rendered) as scene:
         res = sync.sync_scene(scene)
         base = sync.sync_minima_baseline(scene)
     assert res.reliable, res.reason
-    # the simulated event rate lags the image motion by ~1 ms (see core.sync's docstring)
+    # the simulated event rate lags the image motion by ~1 ms (see evpose.core.align.sync's docstring)
     assert abs(res.offset_us - true_off) < 3000
     assert res.skew_ppm is None        # 5 s: too short for a skew
     assert base.method == "minima-baseline"
@@ -422,7 +422,7 @@ def test_apply_through_history_and_undo(rendered, tmp_path):
 
 
 def _cli(argv) -> tuple[int, str]:
-    from core.align_cli import add_align_parsers
+    from evpose.app.cli.align import add_align_parsers
 
     p = argparse.ArgumentParser(prog="evpose")
     add_align_parsers(p.add_subparsers(dest="command", required=True))
@@ -452,8 +452,8 @@ def test_cli_sync_json_apply_baseline(rendered, tmp_path):
 
 # ---------------------------------------------------------------------------- second stage: edges
 def test_rate_then_edges_pins_the_offset(rendered):
-    from core import refine
-    from core.synth import load_ground_truth
+    from evpose.core.align import refine
+    from evpose.core.sim.synth import load_ground_truth
 
     true_off = load_ground_truth(rendered)["clock"]["offset_us"]
     with _Open(rendered) as scene:

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from core.geometry import rotation_angle
-from core.trajectory import ClockModel, Trajectory, TrajectoryError
+from evpose.core.data.geometry import rotation_angle
+from evpose.core.data.trajectory import ClockModel, Trajectory, TrajectoryError
 
 
 def make_traj(n=20, seed=0, t0=0, dt=10_000):

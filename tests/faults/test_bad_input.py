@@ -268,7 +268,7 @@ def test_unattended_gui_on_a_bad_scene_prints_the_error_and_exits_cleanly(case, 
 # ------------------------------------------------------------------------------------------------ warnings
 def test_forced_time_unit_that_makes_an_absurd_event_rate_is_warned(tiny_scene_dir, tmp_path):
     """``--time-unit ns`` on µs data: 1000x the event rate (1.8 G events/s for a 1.8 M events/s recording)."""
-    from core.camera import CameraModel
+    from evpose.core.data.camera import CameraModel
 
     n = 100_000
     rng = np.random.default_rng(0)
@@ -316,7 +316,7 @@ def test_reading_a_fifo_never_blocks_even_past_the_manifest_check(tmp_path):
     for a FIFO after that check still cannot block (a plain open() waits for a writer forever)."""
     import threading
 
-    from core.trajectory import Trajectory, TrajectoryError
+    from evpose.core.data.trajectory import Trajectory, TrajectoryError
 
     fifo = tmp_path / "trajectory.csv"
     os.mkfifo(fifo)

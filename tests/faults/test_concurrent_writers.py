@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.corrections import Corrections, CorrectionsWarning
-from core.corrections_file import LOCK_TIMEOUT_S, locked
-from core.geometry import T_from_rotvec
-from core.scene import Scene
+from evpose.core.document.corrections import Corrections, CorrectionsWarning
+from evpose.core.document.corrections_file import LOCK_TIMEOUT_S, locked
+from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.data.scene import Scene
 
 
 
@@ -42,7 +42,7 @@ Run, assert_clean_error, assert_ok, run_cli = _h.Run, _h.assert_clean_error, _h.
 WRITER = textwrap.dedent('''
     import os, sys, time
     import numpy as np
-    from core.corrections import Corrections, CorrectionsError
+    from evpose.core.document.corrections import Corrections, CorrectionsError
     _replace = os.replace
     def slow_replace(a, b):
         time.sleep(0.05)
@@ -151,8 +151,8 @@ def test_cli_conflict_is_one_clean_line(scene_copy):
     script = textwrap.dedent(f'''
         import sys, json
         from pathlib import Path
-        import core.scene as sc
-        from core.cli import main
+        import evpose.core.data.scene as sc
+        from evpose.app.cli.main import main
         _open = sc.Scene.open
         def open_then_someone_saves(*a, **k):
             s = _open(*a, **k)
@@ -173,7 +173,7 @@ def test_cli_conflict_is_one_clean_line(scene_copy):
 # ---------------------------------------------------------------------------- the lock
 HOLDER = textwrap.dedent('''
     import sys, time
-    from core.corrections_file import locked
+    from evpose.core.document.corrections_file import locked
     with locked(sys.argv[1]):
         print("locked", flush=True)
         time.sleep(120)
@@ -188,7 +188,7 @@ def test_lock_is_exclusive_and_never_stale_after_kill_9(tmp_path):
         assert holder.stdout.readline().strip() == "locked"
         doc = Corrections.load(path)
         doc.set(("offset_us",), 2)
-        from core.corrections_file import save
+        from evpose.core.document.corrections_file import save
 
         t = time.monotonic()
         with pytest.raises(Exception) as ei:             # held: a save waits, then says so
@@ -211,7 +211,7 @@ def test_lock_file_fallback_where_a_folder_cannot_be_locked(tmp_path, monkeypatc
     """If the folder cannot be flock-ed (some network file systems), a lock file beside it is used."""
     import errno
 
-    import core.corrections_file as cf
+    import evpose.core.document.corrections_file as cf
 
     real = cf._acquire
     calls = []

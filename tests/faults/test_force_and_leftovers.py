@@ -29,9 +29,9 @@ from fault_harness import EVPOSE, assert_clean_error, assert_ok, run_cli, snapsh
 def sources(tiny_scene_dir, tmp_path_factory):
     """The tiny scene as published-format sources: an rpg folder, an npz file, a dsec folder
     (events.h5 + trajectory.csv + camera.json) and a camera JSON."""
-    from core.events import EventStore
-    from core.scene import load_manifest
-    from core.trajectory import Trajectory
+    from evpose.core.data.events import EventStore
+    from evpose.core.data.scene import load_manifest
+    from evpose.core.data.trajectory import Trajectory
 
     root = tmp_path_factory.mktemp("force_sources")
     man = load_manifest(tiny_scene_dir)
@@ -58,7 +58,7 @@ def sources(tiny_scene_dir, tmp_path_factory):
 
     dsec = root / "dsec"
     dsec.mkdir()
-    from core.events import write_events_h5
+    from evpose.core.data.events import write_events_h5
 
     write_events_h5(dsec / "events.h5", ev)
     traj.save_csv(dsec / "trajectory.csv")
@@ -152,8 +152,8 @@ def test_export_force_keeps_files_the_user_added(tiny_scene_dir, tmp_path):
 
 # ------------------------------------------------------------------------------------------- --force, API
 def test_force_replaces_an_earlier_evpose_scene_and_refuses_what_is_not_ours(sources, tmp_path):
-    from core.importers import ImportFailure, import_scene
-    from core.synth import SynthConfig, generate
+    from evpose.core.importers import ImportFailure, import_scene
+    from evpose.core.sim.synth import SynthConfig, generate
 
     out = tmp_path / "scene"
     import_scene("npz", [sources["npz"]], out, log=None)
@@ -185,7 +185,7 @@ def test_force_replaces_an_earlier_evpose_scene_and_refuses_what_is_not_ours(sou
 
 
 def test_export_refuses_a_folder_holding_its_scene(scene_copy, tmp_path):
-    from core.export import ExportError, export_scene
+    from evpose.core.export import ExportError, export_scene
 
     before = snapshot(scene_copy)
     for out in (scene_copy, scene_copy.parent):
@@ -197,7 +197,7 @@ def test_export_refuses_a_folder_holding_its_scene(scene_copy, tmp_path):
 def test_export_force_across_formats_removes_exactly_the_old_export(tiny_scene_dir, tmp_path):
     """bop -> h5 -> epose with --force: each replacement leaves only the new format's files (folders
     made by the old export removed), and user files beside are never touched."""
-    from core.export import export_scene
+    from evpose.core.export import export_scene
 
     out = tmp_path / "ex"
     export_scene(tiny_scene_dir, "bop", out, objects="box", window_us=40_000)
@@ -212,7 +212,7 @@ def test_export_force_across_formats_removes_exactly_the_old_export(tiny_scene_d
 def test_failed_export_leaves_no_state_that_needs_force(tiny_scene_dir, tmp_path, monkeypatch):
     """Issue: after a failed export a lone .evpose/config.json made the fixed rerun refuse without --force.
     A run that failed before any window was complete is replaced by the next run, whatever its options."""
-    from core.export import common, export_scene
+    from evpose.core.export import common, export_scene
 
     out = tmp_path / "ex"
 
@@ -231,14 +231,14 @@ def test_failed_export_leaves_no_state_that_needs_force(tiny_scene_dir, tmp_path
     (out / ".evpose").mkdir(parents=True)
     export_scene(tiny_scene_dir, "epose", out, objects="box", window_us=20_000)
     # but an export with complete windows is only replaced with --force
-    from core.export import ExportError
+    from evpose.core.export import ExportError
 
     with pytest.raises(ExportError, match="different configuration"):
         export_scene(tiny_scene_dir, "epose", out, objects="box", window_us=40_000)
 
 
 def test_clean_temp_files_keeps_the_users_tmp_files(tiny_scene_dir, tmp_path):
-    from core.export import export_scene
+    from evpose.core.export import export_scene
 
     out = tmp_path / "ex"
     export_scene(tiny_scene_dir, "epose", out, objects="box", window_us=40_000)
@@ -274,7 +274,7 @@ def _kill_during(args, started, delay_s: float, timeout_s: float = 60) -> int:
 @pytest.fixture(scope="module")
 def big_npz(tmp_path_factory):
     """An npz with enough events (3 M) that an import runs for about a second: room to kill it mid-way."""
-    from core.camera import CameraModel
+    from evpose.core.data.camera import CameraModel
 
     rng = np.random.default_rng(5)
     n = 3_000_000
@@ -318,7 +318,7 @@ def test_killed_imports_leave_nothing_that_blocks_the_next(big_npz, tmp_path):
 def test_killed_synth_and_trash_of_a_replaced_scene(tmp_path):
     """A ``.NAME.synth-PID-TAG`` of a dead synth is removed by the next run; a ``.NAME.replaced-PID-TAG``
     (a scene moved aside when the process died before putting the new one in place) is put back."""
-    from core.owned_files import StagingFolder, clean_stale_staging
+    from evpose.core.data.owned_files import StagingFolder, clean_stale_staging
 
     dead = _dead_pid()
     stale = tmp_path / f".s.synth-{dead}-00aa11bb"
@@ -341,7 +341,7 @@ def test_killed_synth_and_trash_of_a_replaced_scene(tmp_path):
 
 _WRITER = r"""
 import sys, time
-from core.fileio import atomic_path
+from evpose.core.data.fileio import atomic_path
 with atomic_path(sys.argv[1]) as tmp:
     tmp.write_text("half written")
     print("ready", flush=True)
@@ -352,7 +352,7 @@ with atomic_path(sys.argv[1]) as tmp:
 def test_killed_atomic_writes_leave_temps_the_next_write_removes(tmp_path):
     """kill -9 inside an atomic write (as a killed ``--apply``): its ``.corrections.json.<pid>-<tag>.tmp``
     stays; the next save of the same file removes it. A live writer's temp file is never removed."""
-    from core.fileio import atomic_write_text, clean_stale_temps
+    from evpose.core.data.fileio import atomic_write_text, clean_stale_temps
 
     target = tmp_path / "corrections.json"
     atomic_write_text(target, "v1")

@@ -19,9 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from core.annotate import time_windows
-from core.scene import Scene, SceneError, load_manifest
-from core.trajectory import MAX_GAP_STEPS, Trajectory, default_max_gap_us
+from evpose.core.label.annotate import time_windows
+from evpose.core.data.scene import Scene, SceneError, load_manifest
+from evpose.core.data.trajectory import MAX_GAP_STEPS, Trajectory, default_max_gap_us
 
 from fault_harness import assert_ok, run_cli, snapshot
 
@@ -212,8 +212,8 @@ def test_an_11_day_gap_is_a_hole_and_nothing_hangs(tiny_scene_dir, tmp_path):
 
 # ------------------------------------------------------------------------------------------------ sync, refine
 def test_sync_and_refine_use_no_window_and_no_bin_in_a_hole(holed):
-    from core.refine import _Window, choose_windows
-    from core.sync import scene_motion_proxy
+    from evpose.core.align.refine import _Window, choose_windows
+    from evpose.core.align.sync import scene_motion_proxy
 
     holed_dir, (a, b) = holed
     s = Scene.open(holed_dir)
@@ -234,8 +234,8 @@ def test_sync_and_refine_use_no_window_and_no_bin_in_a_hole(holed):
 
 # ------------------------------------------------------------------------------------------------ app
 def test_timeline_shades_the_holes(holed, qtbot):
-    from core.session import Session, timeline_data
-    from widgets.timeline import Timeline
+    from evpose.core.session import Session, timeline_data
+    from evpose.widgets.timeline import Timeline
 
     holed_dir, (a, b) = holed
     session = Session.open(holed_dir)

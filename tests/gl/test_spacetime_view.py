@@ -10,14 +10,14 @@ import time
 import numpy as np
 import pytest
 
-from core.session import FrameComputer, SpaceTimeData
+from evpose.core.session import FrameComputer, SpaceTimeData
 
 W_CANVAS, H_CANVAS = 640, 480
 
 
 @pytest.fixture
 def view(qtbot, session):
-    from widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime_view import SpaceTimeView
 
     w = SpaceTimeView(session)
     qtbot.addWidget(w)
@@ -221,7 +221,7 @@ def test_presets_and_reset_render(qtbot, view, session):
 
 
 def test_close_unsubscribes(qtbot, session):
-    from widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime_view import SpaceTimeView
 
     n0 = len(session._listeners)
     w = SpaceTimeView(session)
@@ -236,7 +236,7 @@ def test_close_unsubscribes(qtbot, session):
 
 def test_stock_markers_fallback_draws_the_same_colours(qtbot, session, monkeypatch):
     """With vispy's own shader (used if its source ever stops matching), the same data renders alike."""
-    from widgets.spacetime_view import SpaceTimeView, _lean_vertex_shader
+    from evpose.widgets.spacetime_view import SpaceTimeView, _lean_vertex_shader
 
     assert _lean_vertex_shader("void main() {}") is None
     monkeypatch.setattr(SpaceTimeView, "lean_upload", False)
@@ -259,7 +259,7 @@ def test_coarse_subset_while_the_camera_moves(qtbot, view, session):
     """Mouse press on the canvas draws a time-uniform prefix of the points; release draws all again."""
     from PySide6 import QtCore
 
-    from widgets.spacetime_view import LOD_POINTS
+    from evpose.widgets.spacetime_view import LOD_POINTS
 
     d = sheet(session, 1, n=200_000, seed=3)
     view.set_data(d)
@@ -284,7 +284,7 @@ def test_deleted_with_its_parent_ignores_late_data(qtbot, session):
     """Inside a dock deleted by the app: the session forgets the view and a late worker result is ignored."""
     from PySide6 import QtWidgets
 
-    from widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime_view import SpaceTimeView
 
     n0 = len(session._listeners)
     parent = QtWidgets.QWidget()

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from PySide6 import QtCore, QtWidgets
 
-from core.geometry import pose_error
-from widgets.correction_panel import CorrectionPanel
+from evpose.core.data.geometry import pose_error
+from evpose.widgets.correction_panel import CorrectionPanel
 
 
 @pytest.fixture

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from core.session import FrameComputer
-from widgets.frame_view import FrameView
+from evpose.core.session import FrameComputer
+from evpose.widgets.frame_view import FrameView
 
 
 @pytest.fixture

@@ -1,7 +1,7 @@
 """Readout: a text that changes every frame must not relayout (and so repaint) the window."""
 from PySide6 import QtCore, QtWidgets
 
-from widgets.labels import Readout
+from evpose.widgets.labels import Readout
 
 
 class _LayoutRequests(QtCore.QObject):

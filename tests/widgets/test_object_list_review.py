@@ -1,7 +1,7 @@
 from PySide6 import QtCore
 
-from widgets.object_list import ObjectList
-from widgets.review_panel import ReviewPanel
+from evpose.widgets.object_list import ObjectList
+from evpose.widgets.review_panel import ReviewPanel
 
 
 def test_object_list_visibility_selection_scores(qtbot, session):

@@ -6,8 +6,8 @@ import pyqtgraph as pg
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from core.session import TimelineData
-from widgets.timeline import SCRUB_INTERVAL_MS, STATUS_COLORS, Timeline
+from evpose.core.session import TimelineData
+from evpose.widgets.timeline import SCRUB_INTERVAL_MS, STATUS_COLORS, Timeline
 
 LEFT = QtCore.Qt.LeftButton
 
@@ -270,7 +270,7 @@ def test_scores_curves_and_worst_window(tl, session, qtbot):
     rng = np.random.default_rng(1)
     scores = {n: rng.uniform(0.5, 2.0, 80) for n in session.object_names}
     scores["box"][[10, 11, 12]] = np.nan
-    scores["box"][42] = 0.01                 # worst: lowest score (core.score: 1 = on the edges, 0 = noise)
+    scores["box"][42] = 0.01                 # worst: lowest score (evpose.core.align.score: 1 = on the edges, 0 = noise)
     scores["cylinder"][:] = np.nan           # undefined everywhere
     scores["flatbox"][7] = 9.0               # best: irrelevant
     scores["flatbox"][63] = 0.02

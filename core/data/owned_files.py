@@ -48,7 +48,7 @@ import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .fileio import TEMP_RE, is_stale
+from evpose.core.data.fileio import TEMP_RE, is_stale
 
 __all__ = ["STATE_DIR", "OWNED_FORMAT", "NotOurs", "OwnedLog", "Inventory", "inventory", "remove_owned",
            "record_tree", "held_input", "input_paths", "in_the_way", "check_scene_out",
@@ -535,7 +535,7 @@ class StagingFolder:
         self._release()
 
     def commit(self, inputs, force: bool) -> Path:
-        from .fileio import fsync_dir, sync_filesystem
+        from evpose.core.data.fileio import fsync_dir, sync_filesystem
 
         record_tree(self.path, SCENE_ROLE, self.command)
         sync_filesystem(self.path)            # every file of the scene on disk before the rename

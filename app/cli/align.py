@@ -3,8 +3,8 @@
 :func:`add_align_parsers` registers the three sub-commands on the ``evpose`` sub-parser set;
 each handler returns an exit status and prints exactly one JSON document on stdout with
 ``--json`` (messages go to stderr). ``--apply`` runs the change through a
-:class:`core.history.History` as one undo step and saves ``corrections.json`` beside the scene through
-:meth:`core.scene.Scene.save_corrections` (revision check: another program's edits saved meanwhile are
+:class:`evpose.core.document.history.History` as one undo step and saves ``corrections.json`` beside the scene through
+:meth:`evpose.core.data.scene.Scene.save_corrections` (revision check: another program's edits saved meanwhile are
 merged, a real conflict is refused with exit status 2 and one line naming the field and both values).
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ def _json_default(o):
 
 
 def _open(path):
-    from .scene import Scene
+    from evpose.core.data.scene import Scene
 
     return Scene.open(path)
 
@@ -48,7 +48,7 @@ MAX_WINDOWS_OPT = 10_000        # --windows of sync --edges / refine: each costs
 
 
 def _option_error(option: str, message: str):
-    from .cli import CliError
+    from evpose.app.cli.main import CliError
 
     return CliError(f"{option}: {message}")
 
@@ -59,14 +59,14 @@ def _check_int(option: str, value, lo: int, hi: int) -> None:
 
 
 def _check_window_ms(option: str, value: float) -> None:
-    from .annotate import MIN_WINDOW_MS
+    from evpose.core.label.annotate import MIN_WINDOW_MS
 
     if not (math.isfinite(value) and value >= MIN_WINDOW_MS):
         raise _option_error(option, f"must be at least {MIN_WINDOW_MS:g} ms (a finite number), got {value:g}")
 
 
 def check_sync_args(args) -> None:
-    """Refuse nonsensical ``sync`` options with one line naming the option (:class:`core.cli.CliError`)."""
+    """Refuse nonsensical ``sync`` options with one line naming the option (:class:`evpose.app.cli.main.CliError`)."""
     if not (math.isfinite(args.range_ms) and 0 < args.range_ms <= MAX_RANGE_MS):
         raise _option_error("--range-ms", f"must be a positive number of milliseconds up to {MAX_RANGE_MS:g}, "
                             f"got {args.range_ms:g}")
@@ -113,8 +113,8 @@ def _progress(args):
 # ---------------------------------------------------------------------------- sync
 def cmd_sync(args) -> int:
     check_sync_args(args)
-    from .history import History
-    from .sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
+    from evpose.core.document.history import History
+    from evpose.core.align.sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
 
     scene = _open(args.scene)
     saved_line = ""
@@ -127,7 +127,7 @@ def cmd_sync(args) -> int:
             data["baseline"] = sync_minima_baseline(scene, range_ms=args.range_ms).to_json()
         edges = None
         if args.edges and res.reliable:
-            from .refine import RefineParams, refine_offset_from_sync
+            from evpose.core.align.refine import RefineParams, refine_offset_from_sync
 
             edges = refine_offset_from_sync(scene, res, params=RefineParams(n_windows=args.windows),
                                             progress=_progress(args))
@@ -137,7 +137,7 @@ def cmd_sync(args) -> int:
         applied = False
         if args.apply:
             if res.reliable:
-                from .refine import apply_offset_result
+                from evpose.core.align.refine import apply_offset_result
 
                 history = History(scene.corrections)
                 applied = (apply_offset_result(history, scene, edges, "clock sync (rate, then edges)")
@@ -185,8 +185,8 @@ def _edges_line(r, label: str = "edges") -> str:
 # ---------------------------------------------------------------------------- refine
 def cmd_refine(args) -> int:
     check_refine_args(args)
-    from .history import History
-    from .refine import RefineParams, apply_offset_result, refine_object, refine_offset
+    from evpose.core.document.history import History
+    from evpose.core.align.refine import RefineParams, apply_offset_result, refine_object, refine_offset
 
     scene = _open(args.scene)
     out = {"objects": {}}
@@ -195,7 +195,7 @@ def cmd_refine(args) -> int:
         names = [args.object] if args.object else scene.object_names
         for n in names:
             if n not in scene.object_names:
-                from .cli import CliError
+                from evpose.app.cli.main import CliError
 
                 raise CliError(f"{scene.manifest.path}: objects: no object named {n!r} "
                                f"(have {', '.join(scene.object_names) or 'none'})")
@@ -238,7 +238,7 @@ def cmd_refine(args) -> int:
 # ---------------------------------------------------------------------------- score
 def cmd_score(args) -> int:
     check_score_args(args)
-    from .score import score_windows
+    from evpose.core.align.score import score_windows
 
     scene = _open(args.scene)
     try:

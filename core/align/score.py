@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .events import Cancelled, EventArray
-from .raster import Rasterizer
+from evpose.core.data.events import Cancelled, EventArray
+from evpose.core.label.raster import Rasterizer
 
 __all__ = ["ScoreParams", "ScoreTable", "ObjectScore", "score_window", "score_windows", "worst_window",
            "object_edges"]
@@ -287,8 +287,8 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
 
     Parameters
     ----------
-    scene : core.scene.Scene
-    windows : list of core.annotate.Window or of (t0_us, t1_us), optional
+    scene : evpose.core.data.scene.Scene
+    windows : list of evpose.core.label.annotate.Window or of (t0_us, t1_us), optional
         Label time is the window centre.
     objects : list of str, optional
         Default all.
@@ -299,10 +299,10 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
     progress : callable, optional
         ``progress(fraction, message)``.
     cancel : callable, optional
-        ``cancel() -> bool``; True raises :class:`core.events.Cancelled`.
+        ``cancel() -> bool``; True raises :class:`evpose.core.data.events.Cancelled`.
     """
-    from .annotate import time_windows
-    from .geometry import inv_T
+    from evpose.core.label.annotate import time_windows
+    from evpose.core.data.geometry import inv_T
 
     t_start = time.perf_counter()
     names = scene.object_names if objects is None else list(objects)

@@ -29,7 +29,7 @@ import h5py
 import hdf5plugin  # noqa: F401  (registers the Blosc filter so that readers can decompress)
 import numpy as np
 
-from .fileio import ensure_free_space, fsync_dir, fsync_path, os_error_from_hdf5, temp_path_for, with_path
+from evpose.core.data.fileio import (ensure_free_space, fsync_dir, fsync_path, os_error_from_hdf5, temp_path_for, with_path)
 
 __all__ = ["EventFileError", "Cancelled", "EventArray", "EventStore", "EventWriter", "write_events_h5"]
 
@@ -324,7 +324,7 @@ class EventStore:
     """
 
     def __init__(self, path, *, cache_dir=None, sensor_size=None, progress=None, cancel=None):
-        from .input_files import InputFileError, check_regular
+        from evpose.core.data.input_files import InputFileError, check_regular
 
         self.path = Path(path)
         self._cache_dir = Path(cache_dir) if cache_dir is not None else None

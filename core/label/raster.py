@@ -73,7 +73,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .camera import CameraModel
+from evpose.core.data.camera import CameraModel
 
 __all__ = ["RasterResult", "Rasterizer"]
 

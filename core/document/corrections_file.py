@@ -10,11 +10,11 @@
    fail with a message instead of waiting forever.
 3. Under the lock it re-reads the file. If the content differs from the document's ``base`` (what the
    file held when the document was loaded or last saved), another program saved meanwhile: the two
-   edits are merged field by field (:func:`core.corrections_merge.merge`) or the save is refused with
-   :class:`~core.corrections_merge.CorrectionsConflict` naming the field and both values. A file that
+   edits are merged field by field (:func:`evpose.core.document.corrections_merge.merge`) or the save is refused with
+   :class:`~evpose.core.document.corrections_merge.CorrectionsConflict` naming the field and both values. A file that
    cannot be read is never overwritten.
 4. It writes the result with the next revision (one more than the larger of the two) through
-   :func:`core.fileio.atomic_path`: temp file in the same folder, ``fsync`` of the temp file, atomic
+   :func:`evpose.core.data.fileio.atomic_path`: temp file in the same folder, ``fsync`` of the temp file, atomic
    rename over the target, ``fsync`` of the folder. A reader sees the old or the new file, never a
    mix; after a crash at any point the old or the new file is on disk.
 """
@@ -29,8 +29,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError
-from .fileio import atomic_path
+from evpose.core.document.corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError
+from evpose.core.data.fileio import atomic_path
 
 #: Seconds a save waits for another writer's lock before giving up with a message.
 LOCK_TIMEOUT_S = 10.0
@@ -192,7 +192,7 @@ def save(path, doc: Corrections, *, prefer: str | None = None, lock_timeout_s: f
     (:meth:`Corrections.mark_saved`). ``prefer`` ("local" / "disk") resolves conflicts instead of
     refusing. Raises :class:`CorrectionsError` (or its subclass ``CorrectionsConflict``) naming the
     file, and ``OSError`` when the write fails (the old file is then intact)."""
-    from .corrections_merge import merge
+    from evpose.core.document.corrections_merge import merge
 
     path = Path(path)
     target = target_of(path)

@@ -1,4 +1,4 @@
-"""``evpose export``: the command-line front end of :func:`core.export.export_scene`.
+"""``evpose export``: the command-line front end of :func:`evpose.core.export.export_scene`.
 
 Wire it into the main parser with :func:`add_export_parser`::
 
@@ -87,15 +87,15 @@ def _error(msg: str) -> int:
 
 
 def _input_errors() -> tuple:
-    from ..camera import CameraError
-    from ..corrections import CorrectionsError
-    from ..events import EventFileError
-    from ..geometry import GeometryError
-    from ..objects import ObjectModelError
-    from ..scene import SceneError
-    from ..trajectory import TrajectoryError
-    from ..annotate import WindowError
-    from .common import ExportError
+    from evpose.core.data.camera import CameraError
+    from evpose.core.document.corrections import CorrectionsError
+    from evpose.core.data.events import EventFileError
+    from evpose.core.data.geometry import GeometryError
+    from evpose.core.data.objects import ObjectModelError
+    from evpose.core.data.scene import SceneError
+    from evpose.core.data.trajectory import TrajectoryError
+    from evpose.core.label.annotate import WindowError
+    from evpose.core.export.common import ExportError
 
     return (ExportError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
             ObjectModelError, GeometryError, FileNotFoundError, FileExistsError, NotADirectoryError, WindowError)
@@ -121,9 +121,9 @@ def summary_text(s) -> str:
 
 def cmd_export(args) -> int:
     """Run ``evpose export`` from parsed arguments; returns the exit status."""
-    from ..annotate import MIN_WINDOW_MS
-    from ..events import Cancelled
-    from . import export_scene
+    from evpose.core.label.annotate import MIN_WINDOW_MS
+    from evpose.core.data.events import Cancelled
+    from evpose.core.export import export_scene
 
     if args.window_ms is not None:
         if not (math.isfinite(args.window_ms) and args.window_ms > 0):
@@ -175,7 +175,7 @@ def cmd_export(args) -> int:
 
 
 def main(argv=None) -> int:
-    """Stand-alone entry point: ``python -m core.export.cli SCENE --format ... --out ...``."""
+    """Stand-alone entry point: ``python -m evpose.app.cli.export SCENE --format ... --out ...``."""
     parser = argparse.ArgumentParser(prog="evpose")
     sub = parser.add_subparsers(dest="command", required=True)
     add_export_parser(sub)

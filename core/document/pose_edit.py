@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .geometry import make_T
+from evpose.core.data.geometry import make_T
 
 FRAMES = ("camera", "object", "base")
 

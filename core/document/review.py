@@ -12,7 +12,7 @@ Rules
 * **Precedence.** For an object at time ``t`` the effective status is that of the object's own mark
   covering ``t``, else that of the all-objects mark covering ``t``, else none. With the two rules above
   this equals "the most recently added mark wins", and it does not depend on the order of the list,
-  so review marks merge as a set (:mod:`core.corrections_merge`).
+  so review marks merge as a set (:mod:`evpose.core.document.corrections_merge`).
 * **State at marking time.** A mark made in the app records the clock in effect (offset and skew) and
   a digest of each covered object's pose inputs (its ``T_base_obj``, its correction, the hand-eye and
   its correction): :class:`MarkState`, stored as ``"at"`` in ``corrections.json``. When the clock or
@@ -21,7 +21,7 @@ Rules
   recorded it, or written by other tools) are never stale.
 * **Grid.** The app's current window is a cell of the export grid: windows of the view's length
   starting at the first event (:func:`grid_window`, the same tiling as
-  :func:`core.annotate.time_windows`), so a mark of the current window is an export window.
+  :func:`evpose.core.label.annotate.time_windows`), so a mark of the current window is an export window.
 """
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .events import EventArray
+from evpose.core.data.events import EventArray
 
 __all__ = [
     "polarity_counts", "spike", "three_channel", "time_surface", "voxel_grid",

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .events import EventArray
+from evpose.core.data.events import EventArray
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import argparse
 import json
 import sys
 
-from . import FORMATS
+from evpose.core.importers import FORMATS
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -89,8 +89,8 @@ def check_args(args) -> str | None:
     formats."""
     import math
 
-    from ..camera import MAX_SIDE_PX
-    from ..trajectory import MAX_ABS_TIME_US
+    from evpose.core.data.camera import MAX_SIDE_PX
+    from evpose.core.data.trajectory import MAX_ABS_TIME_US
 
     def bad_float(name, v, lo, hi, lo_open=False):
         if v is None:
@@ -119,7 +119,7 @@ def check_args(args) -> str | None:
 
 
 def options_from_args(args):
-    from .common import ImportOptions
+    from evpose.core.importers.common import ImportOptions
 
     return ImportOptions(
         repair=args.repair, force=args.force, name=args.name, camera=args.camera, width=args.width,
@@ -134,9 +134,9 @@ def options_from_args(args):
 def cmd_import(args) -> int:
     from tqdm import tqdm
 
-    from ..events import Cancelled
-    from . import import_scene
-    from .common import ImportFailure
+    from evpose.core.data.events import Cancelled
+    from evpose.core.importers import import_scene
+    from evpose.core.importers.common import ImportFailure
 
     quiet = getattr(args, "quiet", False)
     problem = check_args(args)
@@ -188,7 +188,7 @@ def cmd_import(args) -> int:
 
 
 def main(argv=None) -> int:
-    """Stand-alone entry (``python -m core.importers.cli import ...``) until core/cli.py wires it."""
+    """Stand-alone entry (``python -m evpose.app.cli.importers import ...``) until core/cli.py wires it."""
     p = argparse.ArgumentParser(prog="evpose")
     sub = p.add_subparsers(dest="command", required=True)
     add_import_parser(sub)

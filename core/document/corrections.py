@@ -15,9 +15,9 @@ Revision and concurrent writers
 -------------------------------
 The file carries ``"revision"`` (1, 2, ... one more per save; files without it are revision 0 and
 are read as before). A document remembers what the file held when it was loaded or last saved
-(:attr:`Corrections.base`). :meth:`Corrections.save` goes through :func:`core.corrections_file.save`:
+(:attr:`Corrections.base`). :meth:`Corrections.save` goes through :func:`evpose.core.document.corrections_file.save`:
 under a lock it re-reads the file, and if another program changed it meanwhile, merges the two
-edits field by field against that base (:mod:`core.corrections_merge`) or refuses with both values
+edits field by field against that base (:mod:`evpose.core.document.corrections_merge`) or refuses with both values
 named; the write is atomic and durable (temp file, fsync, rename, fsync of the directory) and goes
 through a symlinked ``corrections.json`` to its target.
 
@@ -34,8 +34,8 @@ from typing import Callable
 
 import numpy as np
 
-from .geometry import GeometryError, validate_T
-from .review import REVIEW_STATUSES, MarkState, ReviewMark, effective_status, normalize_marks
+from evpose.core.data.geometry import GeometryError, validate_T
+from evpose.core.document.review import (REVIEW_STATUSES, MarkState, ReviewMark, effective_status, normalize_marks)
 
 __all__ = ["CORRECTIONS_FORMAT", "CORRECTIONS_FILENAME", "REVIEW_STATUSES", "Corrections", "CorrectionsError",
            "CorrectionsWarning", "ReviewMark", "MarkState"]
@@ -91,7 +91,7 @@ class Corrections:
         self.base: dict | None = None
         #: ``(st_dev, st_ino, st_mtime_ns, st_size)`` of the file after our last load or save.
         self.disk_signature: tuple | None = None
-        #: :class:`core.corrections_file.SaveReport` of the last :meth:`save` (None before).
+        #: :class:`evpose.core.document.corrections_file.SaveReport` of the last :meth:`save` (None before).
         self.last_save = None
 
     # ------------------------------------------------------------------ observation
@@ -171,7 +171,7 @@ class Corrections:
         return out
 
     def review_status(self, t_us: int, obj: str | None = None) -> str | None:
-        """Effective review status at ``t_us`` for ``obj`` (see :func:`core.review.effective_status`)."""
+        """Effective review status at ``t_us`` for ``obj`` (see :func:`evpose.core.document.review.effective_status`)."""
         return effective_status(self.reviews, t_us, obj)
 
     def is_identity(self) -> bool:
@@ -262,12 +262,12 @@ class Corrections:
 
     def save(self, path, *, apply_merge: Callable[["Corrections"], None] | None = None,
              prefer: str | None = None) -> Path:
-        """Save through :func:`core.corrections_file.save`: revision check, merge or refusal
-        (:class:`~core.corrections_merge.CorrectionsConflict`), atomic durable write (through a
+        """Save through :func:`evpose.core.document.corrections_file.save`: revision check, merge or refusal
+        (:class:`~evpose.core.document.corrections_merge.CorrectionsConflict`), atomic durable write (through a
         symlink to its target). If another program's edits were merged, ``apply_merge(merged)``
         brings this document to the merged state (default :meth:`assign`; the app goes through its
-        undo history). The :class:`~core.corrections_file.SaveReport` is kept in :attr:`last_save`."""
-        from .corrections_file import save
+        undo history). The :class:`~evpose.core.document.corrections_file.SaveReport` is kept in :attr:`last_save`."""
+        from evpose.core.document.corrections_file import save
 
         report = save(path, self, prefer=prefer)
         if report.merged is not None:
@@ -284,7 +284,7 @@ class Corrections:
         return keys
 
     def mark_saved(self, report) -> None:
-        """Record that the file now holds ``report.written`` (a :class:`core.corrections_file.SaveReport`)."""
+        """Record that the file now holds ``report.written`` (a :class:`evpose.core.document.corrections_file.SaveReport`)."""
         self.revision = report.revision
         self.base = report.written.canonical()
         self.disk_signature = report.signature
@@ -293,7 +293,7 @@ class Corrections:
     def load(cls, path, known_objects=None) -> "Corrections":
         """Read ``path`` (following a symlink); with ``known_objects`` (the scene's object names),
         warn about each object name the scene does not have (kept, not applied)."""
-        from .corrections_file import read
+        from evpose.core.document.corrections_file import read
 
         doc, signature = read(path)
         if doc is None:

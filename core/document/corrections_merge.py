@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .corrections import Corrections, CorrectionsError
-from .geometry import rotation_angle
-from .review import ReviewMark, insert_mark
+from evpose.core.document.corrections import Corrections, CorrectionsError
+from evpose.core.data.geometry import rotation_angle
+from evpose.core.document.review import ReviewMark, insert_mark
 
 
 @dataclass(frozen=True)

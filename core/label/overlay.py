@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .camera import CameraModel
-from .geometry import apply_T
-from .objects import BBOX_EDGES
+from evpose.core.data.camera import CameraModel
+from evpose.core.data.geometry import apply_T
+from evpose.core.data.objects import BBOX_EDGES
 
 #: Qualitative colours (RGB) assigned to objects by their index in the scene.
 PALETTE = ((230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from .fileio import atomic_write_text
-from .geometry import make_T
+from evpose.core.data.fileio import atomic_write_text
+from evpose.core.data.geometry import make_T
 
 CSV_HEADER = ("t_us", "x", "y", "z", "qx", "qy", "qz", "qw")
 #: Largest accepted |time| and |clock offset|, µs (2**53, about 285 years): the clock model and the
@@ -386,11 +386,11 @@ class Trajectory:
     def load_csv(cls, path, *, repair: bool = False, max_gap_us="auto") -> "Trajectory":
         """Read a ``t_us,x,y,z,qx,qy,qz,qw`` CSV (header required, any column order, UTF-8).
 
-        Only a regular file of at most :data:`core.input_files.MAX_TRAJECTORY_BYTES` is read (a FIFO
+        Only a regular file of at most :data:`evpose.core.data.input_files.MAX_TRAJECTORY_BYTES` is read (a FIFO
         or a device is refused before it is read). ``max_gap_us``: "auto" (default) for
         :func:`default_max_gap_us` of the file's times, None for no limit, or µs.
         """
-        from .input_files import MAX_TRAJECTORY_BYTES, InputFileError, open_regular
+        from evpose.core.data.input_files import MAX_TRAJECTORY_BYTES, InputFileError, open_regular
 
         path = Path(path)
         try:

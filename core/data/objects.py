@@ -78,7 +78,7 @@ class ObjectModel:
         """
         import trimesh  # local: keeps `import core` light
 
-        from .input_files import MAX_MESH_BYTES, InputFileError, check_regular
+        from evpose.core.data.input_files import MAX_MESH_BYTES, InputFileError, check_regular
 
         path = Path(path)
         if not path.exists():

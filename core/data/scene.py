@@ -23,13 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import CameraError, CameraModel
-from .corrections import CORRECTIONS_FILENAME, Corrections
-from .fileio import atomic_write_text
-from .geometry import ROTATION_TOLERANCE, GeometryError, inv_T, validate_T
-from .input_files import MAX_MANIFEST_BYTES, InputFileError, check_regular, open_regular
-from .objects import ObjectModel, ObjectModelError, raster_friendly
-from .trajectory import MAX_ABS_TIME_US, ClockModel, Trajectory, TrajectoryError
+from evpose.core.data.camera import CameraError, CameraModel
+from evpose.core.document.corrections import CORRECTIONS_FILENAME, Corrections
+from evpose.core.data.fileio import atomic_write_text
+from evpose.core.data.geometry import ROTATION_TOLERANCE, GeometryError, inv_T, validate_T
+from evpose.core.data.input_files import MAX_MANIFEST_BYTES, InputFileError, check_regular, open_regular
+from evpose.core.data.objects import ObjectModel, ObjectModelError, raster_friendly
+from evpose.core.data.trajectory import MAX_ABS_TIME_US, ClockModel, Trajectory, TrajectoryError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -372,9 +372,9 @@ class Scene:
 
     @cached_property
     def events(self):
-        """The scene's :class:`~core.events.EventStore` (opened read-only on first use; events outside
+        """The scene's :class:`~evpose.core.data.events.EventStore` (opened read-only on first use; events outside
         the camera's ``width`` x ``height`` are refused, see the store's validation)."""
-        from .events import EventStore
+        from evpose.core.data.events import EventStore
 
         cam = self.manifest.camera
         return EventStore(self.manifest.events_path, sensor_size=(cam.width, cam.height))
@@ -382,7 +382,7 @@ class Scene:
     @cached_property
     def trajectory(self) -> Trajectory:
         """The trajectory file, with holes where samples are more than ``max_gap_us`` apart
-        (``[trajectory] max_gap_us``, default :func:`core.trajectory.default_max_gap_us`)."""
+        (``[trajectory] max_gap_us``, default :func:`evpose.core.data.trajectory.default_max_gap_us`)."""
         mg = self.manifest.trajectory_max_gap_us
         try:
             return Trajectory.load_csv(self.manifest.trajectory_path, max_gap_us="auto" if mg is None else mg)
@@ -400,7 +400,7 @@ class Scene:
         Returns one dict per hole: ``t0_pose_us``/``t1_pose_us`` (the samples around the hole, pose
         clock), ``t0_us``/``t1_us`` (the same on the event clock under ``clock``), ``gap_ms``, and
         ``n_windows``: how many windows of the recording's tiling with ``window_us`` windows
-        (labels at the centre, :func:`core.annotate.time_windows`) have their label time in the
+        (labels at the centre, :func:`evpose.core.label.annotate.time_windows`) have their label time in the
         hole, so get no label.
         """
         traj = self.trajectory
@@ -442,7 +442,7 @@ class Scene:
 
     def raster_model(self, name: str) -> ObjectModel:
         """The object's mesh for rasterising: the same surface with long edges split
-        (:func:`core.objects.raster_friendly`; loaded once). Keypoints, boxes and masks are
+        (:func:`evpose.core.data.objects.raster_friendly`; loaded once). Keypoints, boxes and masks are
         identical to :meth:`model`'s, rendering is faster for coarse CAD meshes."""
         key = ("raster", name)
         if key not in self._models:
@@ -534,9 +534,9 @@ class Scene:
         """Save ``corrections.json`` beside the manifest: the one save path of the CLI and the app.
 
         Checks the revision on disk and merges another program's edits saved meanwhile, or refuses a
-        real conflict naming the field and both values (:class:`core.corrections_merge.CorrectionsConflict`);
+        real conflict naming the field and both values (:class:`evpose.core.document.corrections_merge.CorrectionsConflict`);
         atomic and durable; writes through a symlink. ``apply_merge(merged)`` applies merged edits to
         the document (default: directly); details in ``self.corrections.last_save``
-        (see :mod:`core.corrections_file`)."""
+        (see :mod:`evpose.core.document.corrections_file`)."""
         self.corrections.scene_name = self.name
         return self.corrections.save(self.corrections_path, apply_merge=apply_merge, prefer=prefer)

@@ -25,17 +25,17 @@ class CliError(Exception):
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
-    from .camera import CameraError
-    from .corrections import CorrectionsError
-    from .events import EventFileError
-    from .geometry import GeometryError
-    from .objects import ObjectModelError
-    from .scene import SceneError
-    from .trajectory import TrajectoryError
-    from .export.common import ExportError
-    from .importers.common import ImportFailure
-    from .annotate import WindowError
-    from .input_files import InputFileError
+    from evpose.core.data.camera import CameraError
+    from evpose.core.document.corrections import CorrectionsError
+    from evpose.core.data.events import EventFileError
+    from evpose.core.data.geometry import GeometryError
+    from evpose.core.data.objects import ObjectModelError
+    from evpose.core.data.scene import SceneError
+    from evpose.core.data.trajectory import TrajectoryError
+    from evpose.core.export.common import ExportError
+    from evpose.core.importers.common import ImportFailure
+    from evpose.core.label.annotate import WindowError
+    from evpose.core.data.input_files import InputFileError
 
     return (CliError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
             ObjectModelError, GeometryError, ExportError, ImportFailure, FileNotFoundError, FileExistsError,
@@ -66,8 +66,8 @@ def _emit(args, data: dict, text: str) -> None:
 
 # ---------------------------------------------------------------------- commands
 def cmd_synth(args) -> int:
-    from .evsim import SensorParams
-    from .synth import SynthConfig, generate
+    from evpose.core.sim.evsim import SensorParams
+    from evpose.core.sim.synth import SynthConfig, generate
 
     cfg = SynthConfig(
         objects=tuple(s.strip() for s in args.objects.split(",") if s.strip()),
@@ -140,7 +140,7 @@ def scene_info(scene) -> dict:
 
 
 def cmd_info(args) -> int:
-    from .scene import Scene
+    from evpose.core.data.scene import Scene
 
     scene = Scene.open(args.scene)
     try:
@@ -183,7 +183,7 @@ def default_demo_dir() -> Path:
 
 def ensure_demo_scene(out: Path, quiet: bool = False) -> Path:
     """Build the demo scene once (3 objects, injected clock offset and pose error)."""
-    from .synth import SynthConfig, generate
+    from evpose.core.sim.synth import SynthConfig, generate
 
     if (out / "scene.toml").is_file() and (out / "ground_truth.json").is_file():
         return out
@@ -210,7 +210,7 @@ def cmd_demo(args) -> int:
 
 def _run_gui(scene: str | None, args, start_busiest: bool = False) -> int:
     try:
-        from app.main import run_gui
+        from evpose.app.main import run_gui
     except ImportError as exc:
         raise CliError(f"the desktop app cannot start: {exc}") from None
     return run_gui(scene, screenshot=getattr(args, "screenshot", None), quit_after=getattr(args, "quit_after", None),
@@ -283,9 +283,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quit-after", type=float, help="quit the app after this many seconds")
     s.set_defaults(func=cmd_gui)
 
-    from .align_cli import add_align_parsers
-    from .export.cli import add_export_parser
-    from .importers.cli import add_import_parser
+    from evpose.app.cli.align import add_align_parsers
+    from evpose.app.cli.export import add_export_parser
+    from evpose.app.cli.importers import add_import_parser
 
     add_export_parser(sub)
     add_import_parser(sub)
@@ -313,7 +313,7 @@ def main(argv=None) -> int:
         print(f"evpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:          # the system refused a write or read: full disk, read-only, permission
-        from .fileio import describe_os_error
+        from evpose.core.data.fileio import describe_os_error
 
         print(f"evpose {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
         return EXIT_OS_ERROR

@@ -1,4 +1,4 @@
-"""Undo/redo of edits to a :class:`~core.corrections.Corrections` document (pure Python).
+"""Undo/redo of edits to a :class:`~evpose.core.document.corrections.Corrections` document (pure Python).
 
 Every edit is a :class:`Command` carrying its old and new values. :class:`History` runs
 commands, merges repeated nudges of the same field into one step (as ``QUndoStack`` does with
@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from .corrections import Corrections
+from evpose.core.document.corrections import Corrections
 
 
 def _same(a, b) -> bool:

@@ -5,7 +5,7 @@ Estimates the clock model of DESIGN section 3,
 from two signals that both follow the camera's motion:
 
 * the **event rate**: counts per bin (default 1 ms) from the store's ms index
-  (:meth:`core.events.EventStore.rate`, no event is read), and
+  (:meth:`evpose.core.data.events.EventStore.rate`, no event is read), and
 * an **image-motion proxy** from the trajectory: the mean optical-flow magnitude (px/s) over a
   grid of pixel rays for a scene at the distance of the objects (``kind="flow"``, default), or
   ``fx * (|v| / z + |w|)`` (``kind="speed"``). Finite differences of the poses give each
@@ -68,7 +68,7 @@ run of motion (same), 0.5 s blocks or cubic gains (worse), a cubic spline contin
 (0.5-2.7 ms). Skew of 20 s
 sequences: ~9 ppm median. At 0.1 m/s the offset is off by 4-10 ms, consistent with the reported
 standard error (1.6-4.9 ms): a slow move starts and stops gradually, and its rate carries little
-timing. The second stage, :func:`core.refine.refine_offset_from_sync` (``evpose sync --edges``),
+timing. The second stage, :func:`evpose.core.align.refine.refine_offset_from_sync` (``evpose sync --edges``),
 fits offset and skew to the event edges within 3 of these standard errors and takes the error to
 ~0.1-0.3 ms at every speed, provided the object poses are right.
 
@@ -84,8 +84,8 @@ import numpy as np
 from scipy import ndimage, optimize, signal, stats
 from scipy.spatial.transform import Rotation
 
-from .events import Cancelled
-from .trajectory import ClockModel, Trajectory
+from evpose.core.data.events import Cancelled
+from evpose.core.data.trajectory import ClockModel, Trajectory
 
 __all__ = ["MotionProxy", "SyncResult", "SegmentOffset", "motion_proxy", "scene_motion_proxy",
            "estimate_clock", "sync_scene", "minima_baseline", "sync_minima_baseline", "clock_correction",
@@ -930,7 +930,7 @@ def estimate_clock(starts_us, counts, bin_us: int, proxy: MotionProxy, prior: Cl
     progress : callable, optional
         ``progress(fraction, message)``.
     cancel : callable, optional
-        ``cancel() -> bool``; True raises :class:`core.events.Cancelled`.
+        ``cancel() -> bool``; True raises :class:`evpose.core.data.events.Cancelled`.
     """
     t_start = time.perf_counter()
     bin_us = int(bin_us)

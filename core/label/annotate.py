@@ -23,11 +23,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import CameraModel
-from .events import EventArray
-from .geometry import apply_T
-from .raster import Rasterizer
-from .trajectory import ClockModel
+from evpose.core.data.camera import CameraModel
+from evpose.core.data.events import EventArray
+from evpose.core.data.geometry import apply_T
+from evpose.core.label.raster import Rasterizer
+from evpose.core.data.trajectory import ClockModel
 
 LABEL_AT = ("center", "end", "start")
 #: Shortest window the command line accepts (``--window-ms``), ms: poses are sampled every few ms, so
@@ -207,7 +207,7 @@ class Annotator:
 
     Parameters
     ----------
-    scene : core.scene.Scene
+    scene : evpose.core.data.scene.Scene
     request : Request
     camera : CameraModel, optional
         Output camera (default: the scene's raw camera).

@@ -1,0 +1,1 @@
+"""Alignment of labels with events: scores, clock sync, refinement from edges."""

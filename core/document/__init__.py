@@ -1,0 +1,1 @@
+"""The user's document: corrections, undo history, pose edits, review marks, saving."""

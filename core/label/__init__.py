@@ -1,0 +1,1 @@
+"""Labels of one event window: rasteriser, annotation, overlays, event representations."""
