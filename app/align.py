@@ -11,9 +11,8 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
-from evpose.core.align.sync import SLOW_STD_NOTE_US
-
 from evpose.app.workers import Job, progress_dialog
+from evpose.core.align.sync import SLOW_STD_NOTE_US
 
 
 def _fmt_ms(us) -> str:

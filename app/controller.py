@@ -18,11 +18,10 @@ from pathlib import Path
 from PySide6 import QtCore, QtWidgets
 
 from evpose.app.cli.main import _input_errors
+from evpose.app.workers import Job, progress_dialog
 from evpose.core.document.corrections import CorrectionsError, CorrectionsWarning
 from evpose.core.document.corrections_merge import CorrectionsConflict
 from evpose.core.session import Session
-
-from evpose.app.workers import Job, progress_dialog
 
 
 class ExportDialog(QtWidgets.QDialog):

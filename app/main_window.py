@@ -6,13 +6,6 @@ from pathlib import Path
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from evpose.core.session import REPRESENTATION_NAMES, FrameComputer, FrameData, Session, SpaceTimeData
-from evpose.widgets.correction_panel import CorrectionPanel
-from evpose.widgets.frame_view import FrameView
-from evpose.widgets.help_overlay import HelpOverlay
-from evpose.widgets.object_list import ObjectList
-from evpose.widgets.review_panel import ReviewPanel
-
 from evpose.app import actions as A
 from evpose.app.align import AlignController
 from evpose.app.controller import Controller
@@ -20,6 +13,12 @@ from evpose.app.disk_watch import CorrectionsWatcher
 from evpose.app.settings import Settings
 from evpose.app.undo_bridge import UndoBridge
 from evpose.app.workers import LatestWorker
+from evpose.core.session import REPRESENTATION_NAMES, FrameComputer, FrameData, Session, SpaceTimeData
+from evpose.widgets.correction_panel import CorrectionPanel
+from evpose.widgets.frame_view import FrameView
+from evpose.widgets.help_overlay import HelpOverlay
+from evpose.widgets.object_list import ObjectList
+from evpose.widgets.review_panel import ReviewPanel
 
 AUTOSAVE_MS = 20_000
 SPACETIME_DEBOUNCE_MS = 250   # the space-time view follows once scrubbing pauses: it must not slow the frame

@@ -52,11 +52,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from evpose.core.data.camera import CameraModel  # noqa: E402
-from evpose.core.document.corrections import Corrections  # noqa: E402
 from evpose.core.data.geometry import inv_T, pose_error  # noqa: E402
 from evpose.core.data.scene import Scene  # noqa: E402
-from evpose.core.sim.synth import SynthConfig, generate, load_ground_truth  # noqa: E402
 from evpose.core.data.trajectory import ClockModel, Trajectory  # noqa: E402
+from evpose.core.document.corrections import Corrections  # noqa: E402
+from evpose.core.sim.synth import SynthConfig, generate, load_ground_truth  # noqa: E402
 
 DATA = REPO / "bench" / ".data" / "accuracy"
 OUT = REPO / "bench" / "out"

@@ -46,9 +46,9 @@ def ensure_scene() -> Path:
 
 
 def run(fmt: str, jobs: int, quick: bool, durable) -> dict:
+    from evpose.core.data.scene import Scene
     from evpose.core.document.corrections import ReviewMark
     from evpose.core.export import export_scene
-    from evpose.core.data.scene import Scene
 
     out = OUT / f"{fmt}_{jobs}"
     shutil.rmtree(out, ignore_errors=True)

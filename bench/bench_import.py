@@ -68,7 +68,13 @@ def _event_chunks(n_events, width, height, seed, chunk=1_000_000):
 def gen_bag(path: Path, n_events: int) -> None:
     from rosbags.rosbag1 import Writer
 
-    from evpose.core.importers.epose_bag import (EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, dvs_typestore, encode_event_array, encode_pose_stamped)
+    from evpose.core.importers.epose_bag import (
+        EVENT_ARRAY_TYPE,
+        POSE_STAMPED_TYPE,
+        dvs_typestore,
+        encode_event_array,
+        encode_pose_stamped,
+    )
 
     ts = dvs_typestore()
     rng = np.random.default_rng(1)
@@ -146,9 +152,9 @@ def child(task: str, arg: str, extra: str) -> dict:
     import hdf5plugin  # noqa: F401
     import rosbags.rosbag1  # noqa: F401
 
+    import evpose.core.data.scene  # noqa: F401
     import evpose.core.importers.dsec  # noqa: F401
     import evpose.core.importers.epose_bag  # noqa: F401
-    import evpose.core.data.scene  # noqa: F401
     t0 = time.perf_counter()
     res = {}
     if task == "gen-bag":

@@ -24,9 +24,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from evpose.core.label import represent as R  # noqa: E402
 from evpose.core.data.camera import CameraModel  # noqa: E402
 from evpose.core.data.events import EventArray  # noqa: E402
+from evpose.core.label import represent as R  # noqa: E402
 
 W, H = 346, 260
 T0, T1 = 1_700_000_000_000_000, 1_700_000_000_010_000     # epoch µs, 10 ms window

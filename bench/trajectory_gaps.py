@@ -19,8 +19,8 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from evpose.core.sim.synth import SynthConfig, make_motion  # noqa: E402
 from evpose.core.data.trajectory import Trajectory  # noqa: E402
+from evpose.core.sim.synth import SynthConfig, make_motion  # noqa: E402
 
 GAPS = (1, 2, 3, 4, 5, 10, 25, 50)
 

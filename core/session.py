@@ -32,18 +32,25 @@ from typing import Callable
 
 import numpy as np
 
-from evpose.core.label import represent
-from evpose.core.label.annotate import Annotator, Request, Window, WindowLabels, label_time
+from evpose.core.data.events import EventArray
+from evpose.core.data.scene import Scene
 from evpose.core.document.corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError, ReviewMark
 from evpose.core.document.corrections_file import read as read_corrections
 from evpose.core.document.corrections_file import signature, target_of
 from evpose.core.document.corrections_merge import MergeResult, field_name, merge
-from evpose.core.document.review import grid_window, insert_mark, mark_state, stale_reasons
-from evpose.core.data.events import EventArray
 from evpose.core.document.history import Group, History, SetValue
-from evpose.core.label.overlay import (ObjectOverlay, axes_segments, box_segments, compose_masks_rgba, mask_contours, object_color)
 from evpose.core.document.pose_edit import hand_eye_step, nudge_step
-from evpose.core.data.scene import Scene
+from evpose.core.document.review import grid_window, insert_mark, mark_state, stale_reasons
+from evpose.core.label import represent
+from evpose.core.label.annotate import Annotator, Request, Window, WindowLabels, label_time
+from evpose.core.label.overlay import (
+    ObjectOverlay,
+    axes_segments,
+    box_segments,
+    compose_masks_rgba,
+    mask_contours,
+    object_color,
+)
 
 OVERLAY_KINDS = ("mask", "contour", "box", "axes", "center")
 REPRESENTATION_NAMES = ("polarity", "spike", "three_channel", "time_surface", "counts", "voxel")

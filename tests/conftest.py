@@ -6,8 +6,8 @@ import os
 from pathlib import Path
 
 import pytest
-
 from evpose_testing import TINY_SCENE, half_davis_camera
+
 
 @pytest.hookimpl(trylast=True)
 def pytest_configure(config):

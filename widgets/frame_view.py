@@ -12,7 +12,6 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.label.overlay import AXIS_COLORS
 from evpose.core.session import FrameData, Session
-
 from evpose.widgets.labels import Readout
 
 

@@ -110,8 +110,8 @@ def _make_event_cloud_class(lean: bool):
     """Build the ``Markers`` subclass (needs vispy, hence a factory); ``lean=False`` keeps vispy's shader
     and ``Markers.set_data`` (the fallback, also used by the benchmark for comparison)."""
     from vispy.gloo import VertexBuffer
-    from vispy.visuals.markers import MarkersVisual
     from vispy.scene.visuals import create_visual_node
+    from vispy.visuals.markers import MarkersVisual
 
     lean_vs = _lean_vertex_shader(MarkersVisual._shaders["vertex"]) if lean else None
 

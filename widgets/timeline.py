@@ -24,7 +24,6 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.session import Session, TimelineData, timeline_data
-
 from evpose.widgets.labels import Readout
 
 #: Review status colours (same as the review panel's).

@@ -113,8 +113,8 @@ def _progress(args):
 # ---------------------------------------------------------------------------- sync
 def cmd_sync(args) -> int:
     check_sync_args(args)
-    from evpose.core.document.history import History
     from evpose.core.align.sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
+    from evpose.core.document.history import History
 
     scene = _open(args.scene)
     saved_line = ""
@@ -185,8 +185,8 @@ def _edges_line(r, label: str = "edges") -> str:
 # ---------------------------------------------------------------------------- refine
 def cmd_refine(args) -> int:
     check_refine_args(args)
-    from evpose.core.document.history import History
     from evpose.core.align.refine import RefineParams, apply_offset_result, refine_object, refine_offset
+    from evpose.core.document.history import History
 
     scene = _open(args.scene)
     out = {"objects": {}}

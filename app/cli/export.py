@@ -88,14 +88,14 @@ def _error(msg: str) -> int:
 
 def _input_errors() -> tuple:
     from evpose.core.data.camera import CameraError
-    from evpose.core.document.corrections import CorrectionsError
     from evpose.core.data.events import EventFileError
     from evpose.core.data.geometry import GeometryError
     from evpose.core.data.objects import ObjectModelError
     from evpose.core.data.scene import SceneError
     from evpose.core.data.trajectory import TrajectoryError
-    from evpose.core.label.annotate import WindowError
+    from evpose.core.document.corrections import CorrectionsError
     from evpose.core.export.common import ExportError
+    from evpose.core.label.annotate import WindowError
 
     return (ExportError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
             ObjectModelError, GeometryError, FileNotFoundError, FileExistsError, NotADirectoryError, WindowError)
@@ -121,9 +121,9 @@ def summary_text(s) -> str:
 
 def cmd_export(args) -> int:
     """Run ``evpose export`` from parsed arguments; returns the exit status."""
-    from evpose.core.label.annotate import MIN_WINDOW_MS
     from evpose.core.data.events import Cancelled
     from evpose.core.export import export_scene
+    from evpose.core.label.annotate import MIN_WINDOW_MS
 
     if args.window_ms is not None:
         if not (math.isfinite(args.window_ms) and args.window_ms > 0):

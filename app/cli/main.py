@@ -13,7 +13,6 @@ import os
 import sys
 from pathlib import Path
 
-
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 #: The system refused a write or a read (full disk, read-only file system, permission): one line naming the path.
@@ -26,16 +25,16 @@ class CliError(Exception):
 
 def _input_errors() -> tuple[type[BaseException], ...]:
     from evpose.core.data.camera import CameraError
-    from evpose.core.document.corrections import CorrectionsError
     from evpose.core.data.events import EventFileError
     from evpose.core.data.geometry import GeometryError
+    from evpose.core.data.input_files import InputFileError
     from evpose.core.data.objects import ObjectModelError
     from evpose.core.data.scene import SceneError
     from evpose.core.data.trajectory import TrajectoryError
+    from evpose.core.document.corrections import CorrectionsError
     from evpose.core.export.common import ExportError
     from evpose.core.importers.common import ImportFailure
     from evpose.core.label.annotate import WindowError
-    from evpose.core.data.input_files import InputFileError
 
     return (CliError, SceneError, CorrectionsError, EventFileError, TrajectoryError, CameraError,
             ObjectModelError, GeometryError, ExportError, ImportFailure, FileNotFoundError, FileExistsError,

@@ -301,8 +301,8 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
     cancel : callable, optional
         ``cancel() -> bool``; True raises :class:`evpose.core.data.events.Cancelled`.
     """
-    from evpose.core.label.annotate import time_windows
     from evpose.core.data.geometry import inv_T
+    from evpose.core.label.annotate import time_windows
 
     t_start = time.perf_counter()
     names = scene.object_names if objects is None else list(objects)

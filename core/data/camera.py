@@ -19,6 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from evpose.core.errors import InputError
+
 #: DAVIS346c calibration hard-coded in the E-POSE annotation scripts (OpenCV model, k1 k2 p1 p2 k3);
 #: the same values as ``shared/assets/epose/camera_davis346.json``.
 DAVIS346_WIDTH = 346
@@ -41,7 +43,7 @@ MAX_ABS_DIST = 1e6
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 
-class CameraError(ValueError):
+class CameraError(InputError):
     """Invalid camera parameters; the message names the source and the field."""
 
 

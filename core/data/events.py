@@ -29,7 +29,15 @@ import h5py
 import hdf5plugin  # noqa: F401  (registers the Blosc filter so that readers can decompress)
 import numpy as np
 
-from evpose.core.data.fileio import (ensure_free_space, fsync_dir, fsync_path, os_error_from_hdf5, temp_path_for, with_path)
+from evpose.core.data.fileio import (
+    ensure_free_space,
+    fsync_dir,
+    fsync_path,
+    os_error_from_hdf5,
+    temp_path_for,
+    with_path,
+)
+from evpose.core.errors import InputError
 
 __all__ = ["EventFileError", "Cancelled", "EventArray", "EventStore", "EventWriter", "write_events_h5"]
 
@@ -57,7 +65,7 @@ _CACHE_VERSION = 2              # 2: the cache holds the validation result (pixe
 _WRAP = 2**32
 
 
-class EventFileError(ValueError):
+class EventFileError(InputError):
     """A malformed event file; the message names the file and the HDF5 field at fault."""
 
     def __init__(self, path, field: str, message: str):

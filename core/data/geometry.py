@@ -9,13 +9,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from evpose.core.errors import InputError
+
 #: Default tolerance on ``max|R R^T - I|`` above which a rotation read from a file is refused
 #: (unless the user opts in to repairing it). Published E-POSE poses are rounded to 3-5 digits
 #: and have residuals mostly below 0.012.
 ROTATION_TOLERANCE = 0.02
 
 
-class GeometryError(ValueError):
+class GeometryError(InputError):
     """A matrix that is not a valid rigid transform."""
 
 

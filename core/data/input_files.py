@@ -19,6 +19,8 @@ import os
 import stat
 from pathlib import Path
 
+from evpose.core.errors import InputError
+
 __all__ = ["InputFileError", "MAX_MANIFEST_BYTES", "MAX_TRAJECTORY_BYTES", "MAX_MESH_BYTES", "check_regular",
            "open_regular", "describe_kind"]
 
@@ -31,7 +33,7 @@ MAX_TRAJECTORY_BYTES = 2**30
 MAX_MESH_BYTES = 2**30
 
 
-class InputFileError(ValueError):
+class InputFileError(InputError):
     """An input path that is not a readable regular file of sane size; the message names the path."""
 
     def __init__(self, path, message: str):

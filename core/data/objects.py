@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from evpose.core.errors import InputError
 
-class ObjectModelError(ValueError):
+
+class ObjectModelError(InputError):
     """A mesh that cannot be used; the message names the file."""
 
 
@@ -78,7 +80,11 @@ class ObjectModel:
         """
         import trimesh  # local: keeps `import core` light
 
-        from evpose.core.data.input_files import MAX_MESH_BYTES, InputFileError, check_regular
+        from evpose.core.data.input_files import (
+            MAX_MESH_BYTES,
+            InputFileError,
+            check_regular,
+        )
 
         path = Path(path)
         if not path.exists():

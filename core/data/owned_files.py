@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from evpose.core.data.fileio import TEMP_RE, is_stale
+from evpose.core.errors import NotOursError
 
 __all__ = ["STATE_DIR", "OWNED_FORMAT", "NotOurs", "OwnedLog", "Inventory", "inventory", "remove_owned",
            "record_tree", "held_input", "input_paths", "in_the_way", "check_scene_out",
@@ -60,8 +61,7 @@ _LOG_RE = re.compile(r"^owned-\d+-[0-9a-f]+\.log$")
 CACHE_SUFFIX = ".msidx.npz"
 
 
-class NotOurs(FileExistsError):
-    """An output folder holds something evpose may not remove (the message names it)."""
+NotOurs = NotOursError
 
 
 # ------------------------------------------------------------------------------------------- the log

@@ -15,21 +15,37 @@ path must name a regular file: folders, FIFOs and devices are refused before the
 from __future__ import annotations
 
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from functools import cached_property
-import os
 from pathlib import Path
 
 import numpy as np
 
 from evpose.core.data.camera import CameraError, CameraModel
-from evpose.core.document.corrections import CORRECTIONS_FILENAME, Corrections
 from evpose.core.data.fileio import atomic_write_text
-from evpose.core.data.geometry import ROTATION_TOLERANCE, GeometryError, inv_T, validate_T
-from evpose.core.data.input_files import MAX_MANIFEST_BYTES, InputFileError, check_regular, open_regular
+from evpose.core.data.geometry import (
+    ROTATION_TOLERANCE,
+    GeometryError,
+    inv_T,
+    validate_T,
+)
+from evpose.core.data.input_files import (
+    MAX_MANIFEST_BYTES,
+    InputFileError,
+    check_regular,
+    open_regular,
+)
 from evpose.core.data.objects import ObjectModel, ObjectModelError, raster_friendly
-from evpose.core.data.trajectory import MAX_ABS_TIME_US, ClockModel, Trajectory, TrajectoryError
+from evpose.core.data.trajectory import (
+    MAX_ABS_TIME_US,
+    ClockModel,
+    Trajectory,
+    TrajectoryError,
+)
+from evpose.core.document.corrections import CORRECTIONS_FILENAME, Corrections
+from evpose.core.errors import InputError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -52,7 +68,7 @@ _KNOWN = {
 }
 
 
-class SceneError(ValueError):
+class SceneError(InputError):
     """Invalid scene input; ``file`` and ``field`` say where."""
 
     def __init__(self, file, fld: str, message: str):

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from evpose.core.data.fileio import atomic_write_text
 from evpose.core.data.geometry import make_T
+from evpose.core.errors import InputError
 
 CSV_HEADER = ("t_us", "x", "y", "z", "qx", "qy", "qz", "qw")
 #: Largest accepted |time| and |clock offset|, µs (2**53, about 285 years): the clock model and the
@@ -70,7 +71,7 @@ def default_max_gap_us(t_us) -> int | None:
     return int(math.ceil(MAX_GAP_STEPS * float(np.median(d))))
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(InputError):
     """Invalid trajectory data; the message names the source file, row and field."""
 
 
@@ -390,7 +391,11 @@ class Trajectory:
         or a device is refused before it is read). ``max_gap_us``: "auto" (default) for
         :func:`default_max_gap_us` of the file's times, None for no limit, or µs.
         """
-        from evpose.core.data.input_files import MAX_TRAJECTORY_BYTES, InputFileError, open_regular
+        from evpose.core.data.input_files import (
+            MAX_TRAJECTORY_BYTES,
+            InputFileError,
+            open_regular,
+        )
 
         path = Path(path)
         try:

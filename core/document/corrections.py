@@ -35,7 +35,14 @@ from typing import Callable
 import numpy as np
 
 from evpose.core.data.geometry import GeometryError, validate_T
-from evpose.core.document.review import (REVIEW_STATUSES, MarkState, ReviewMark, effective_status, normalize_marks)
+from evpose.core.document.review import (
+    REVIEW_STATUSES,
+    MarkState,
+    ReviewMark,
+    effective_status,
+    normalize_marks,
+)
+from evpose.core.errors import InputError
 
 __all__ = ["CORRECTIONS_FORMAT", "CORRECTIONS_FILENAME", "REVIEW_STATUSES", "Corrections", "CorrectionsError",
            "CorrectionsWarning", "ReviewMark", "MarkState"]
@@ -52,7 +59,7 @@ MAX_SKEW_PPM = 1e6
 DOCUMENT_KEYS = ("clock", "objects", "hand_eye", "reviews")
 
 
-class CorrectionsError(ValueError):
+class CorrectionsError(InputError):
     """A corrections file that cannot be used; the message names the file and the field."""
 
 

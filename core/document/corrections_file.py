@@ -29,8 +29,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from evpose.core.document.corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError
 from evpose.core.data.fileio import atomic_path
+from evpose.core.document.corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError
 
 #: Seconds a save waits for another writer's lock before giving up with a message.
 LOCK_TIMEOUT_S = 10.0

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evpose.core.document.corrections import Corrections, CorrectionsError
 from evpose.core.data.geometry import rotation_angle
+from evpose.core.document.corrections import Corrections, CorrectionsError
 from evpose.core.document.review import ReviewMark, insert_mark
 
 

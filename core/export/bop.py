@@ -42,10 +42,18 @@ import time
 
 import numpy as np
 
-from evpose.core.label.annotate import Request
 from evpose.core.data.geometry import inv_T
+from evpose.core.export.common import (
+    AtomicBatch,
+    ExportError,
+    FormatWriter,
+    encode_png,
+    evpose_version,
+    json_text,
+    write_atomic,
+)
+from evpose.core.label.annotate import Request
 from evpose.core.label.represent import polarity_counts, undistorter_for
-from evpose.core.export.common import (AtomicBatch, ExportError, FormatWriter, encode_png, evpose_version, json_text, write_atomic)
 
 
 def _K_of(scene, K_new):

@@ -64,12 +64,25 @@ from typing import Callable
 
 import numpy as np
 
-from evpose.core.label.annotate import Annotator, Request, Window, count_windows, time_windows
-from evpose.core.document.corrections import Corrections
 from evpose.core.data.events import Cancelled, EventArray
 from evpose.core.data.fileio import TEMP_RE, fsync_dir, sync_filesystem, with_path
-from evpose.core.data.owned_files import OwnedLog, held_input, in_the_way, inventory, remove_owned
+from evpose.core.data.owned_files import (
+    OwnedLog,
+    held_input,
+    in_the_way,
+    inventory,
+    remove_owned,
+)
 from evpose.core.data.trajectory import REASON_AFTER, REASON_BEFORE
+from evpose.core.document.corrections import Corrections
+from evpose.core.errors import InputError
+from evpose.core.label.annotate import (
+    Annotator,
+    Request,
+    Window,
+    count_windows,
+    time_windows,
+)
 
 __all__ = [
     "EXPORT_LAYOUT_VERSION", "FORMATS", "STATE_DIR", "MANIFEST_NAME", "ExportError", "ExportSummary",
@@ -91,7 +104,7 @@ UNLABELED_OTHER = "label time outside the trajectory (no extrapolation)"
 STAGES = ("events", "annotate", "images", "mat", "write")
 
 
-class ExportError(ValueError):
+class ExportError(InputError):
     """A user-facing export error; the message names the file or the option at fault."""
 
 

@@ -49,8 +49,8 @@ import time
 
 import numpy as np
 
+from evpose.core.export.common import AtomicBatch, ExportError, FormatWriter, encode_png, savemat_bytes, write_atomic
 from evpose.core.label.annotate import Request
-from evpose.core.export.common import (AtomicBatch, ExportError, FormatWriter, encode_png, savemat_bytes, write_atomic)
 
 #: Original E-POSE corner order p1..p8 as indices into :func:`evpose.core.data.objects.ObjectModel.bbox_corners`
 #: (whose corner i takes the max along axis a when bit a of i is set).

@@ -39,10 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evpose.core.label.annotate import Request
 from evpose.core.data.fileio import ensure_free_space, fsync_dir, os_error_from_hdf5
-from evpose.core.label.represent import polarity_counts, three_channel, three_channel_rgb
 from evpose.core.export.common import ExportError, FormatWriter, evpose_version, write_atomic
+from evpose.core.label.annotate import Request
+from evpose.core.label.represent import polarity_counts, three_channel, three_channel_rgb
 
 H5_FORMAT = "evpose-h5/1"
 COUNTS_MAX = np.iinfo(np.uint16).max

@@ -19,7 +19,7 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
-from evpose.core.importers.common import (REPORT_FILENAME, ImportContext, ImportFailure, ImportOptions, ImportReport)
+from evpose.core.importers.common import REPORT_FILENAME, ImportContext, ImportFailure, ImportOptions, ImportReport
 
 __all__ = ["FORMATS", "import_scene", "ImportFailure", "ImportOptions", "ImportReport", "REPORT_FILENAME"]
 

@@ -44,9 +44,21 @@ import numpy as np
 from evpose.core.data.camera import CameraError, CameraModel
 from evpose.core.data.events import Cancelled, EventArray, EventWriter
 from evpose.core.data.fileio import atomic_write_text
-from evpose.core.data.geometry import ROTATION_TOLERANCE, make_T, orthonormalize, rotation_angle
-from evpose.core.data.scene import SCENE_FILENAME, ObjectSpec, SceneError, SceneManifest, load_manifest
+from evpose.core.data.geometry import (
+    ROTATION_TOLERANCE,
+    make_T,
+    orthonormalize,
+    rotation_angle,
+)
+from evpose.core.data.scene import (
+    SCENE_FILENAME,
+    ObjectSpec,
+    SceneError,
+    SceneManifest,
+    load_manifest,
+)
 from evpose.core.data.trajectory import Trajectory, TrajectoryError
+from evpose.core.errors import InputError
 
 REPORT_FILENAME = "import_report.json"
 REPORT_FORMAT = "evpose-import-report/1"
@@ -63,7 +75,7 @@ _FLUSH_EVENTS = 1 << 20
 
 
 # ---------------------------------------------------------------------------------------------- errors
-class ImportFailure(ValueError):
+class ImportFailure(InputError):
     """Bad input to an importer. ``file``, ``record`` (message index / line / row / window) and ``field``
     say where; ``str(exc)`` is ``"{file}: {record}: {field}: {message}"``."""
 

@@ -31,7 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
-from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, load_camera, read_pose_text, result_summary, wrap_errors)
+from evpose.core.importers.common import (
+    ImportContext,
+    ImportFailure,
+    SceneBuilder,
+    load_camera,
+    read_pose_text,
+    result_summary,
+    wrap_errors,
+)
 from evpose.core.importers.epose_bag import collect_objects
 
 _CHUNK = 1 << 20

@@ -44,7 +44,18 @@ import numpy as np
 
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.geometry import ROTATION_TOLERANCE
-from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, check_T, load_camera, make_trajectory, parse_objects_arg, result_summary, ros_time_to_us, wrap_errors)
+from evpose.core.importers.common import (
+    ImportContext,
+    ImportFailure,
+    SceneBuilder,
+    check_T,
+    load_camera,
+    make_trajectory,
+    parse_objects_arg,
+    result_summary,
+    ros_time_to_us,
+    wrap_errors,
+)
 
 EVENT_MSG = "uint16 x\nuint16 y\ntime ts\nbool polarity\n"
 EVENT_ARRAY_MSG = "Header header\nuint32 height\nuint32 width\nEvent[] events\n"

@@ -50,8 +50,21 @@ import numpy as np
 
 from evpose.core.data.camera import DAVIS346_DIST, DAVIS346_K, CameraError, CameraModel
 from evpose.core.data.geometry import ROTATION_TOLERANCE
-from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, check_T, derive_camera_trajectory, float_to_us, load_camera, make_trajectory, poses_from_matrices, resolve_time_unit, result_summary, wrap_errors)
-from evpose.core.importers.epose_bag import (EPOSE_PUBLISHED_TOLERANCE, collect_objects, find_mesh, load_epose_assets)
+from evpose.core.importers.common import (
+    ImportContext,
+    ImportFailure,
+    SceneBuilder,
+    check_T,
+    derive_camera_trajectory,
+    float_to_us,
+    load_camera,
+    make_trajectory,
+    poses_from_matrices,
+    resolve_time_unit,
+    result_summary,
+    wrap_errors,
+)
+from evpose.core.importers.epose_bag import EPOSE_PUBLISHED_TOLERANCE, collect_objects, find_mesh, load_epose_assets
 
 _NAME = re.compile(r"^(\d+)_data\.mat$")
 _FIELDS = ("events", "pose", "time", "intrinsicMatrix", "cls_index", "cameraPose")
@@ -77,9 +90,8 @@ def list_windows(sources) -> list[tuple[int, Path]]:
 
 def load_window(path: Path) -> dict:
     """The fields of one ``NNNN_data.mat`` as float64 arrays (MATLAB shapes kept)."""
-    import scipy.io
-
     import h5py
+    import scipy.io
 
     try:
         with wrap_errors(path, "(file)", "-", "not a readable MATLAB file"):

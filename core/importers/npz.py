@@ -21,7 +21,19 @@ from pathlib import Path
 import numpy as np
 
 from evpose.core.data.camera import CameraError, CameraModel
-from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, TIME_UNITS, float_to_us, load_camera, make_trajectory, poses_from_matrices, resolve_time_unit, result_summary, wrap_errors)
+from evpose.core.importers.common import (
+    TIME_UNITS,
+    ImportContext,
+    ImportFailure,
+    SceneBuilder,
+    float_to_us,
+    load_camera,
+    make_trajectory,
+    poses_from_matrices,
+    resolve_time_unit,
+    result_summary,
+    wrap_errors,
+)
 from evpose.core.importers.epose_bag import collect_objects
 
 _CHUNK = 1 << 21

@@ -25,7 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, TIME_UNITS, float_to_us, load_camera, read_pose_text, resolve_time_unit, result_summary, wrap_errors)
+from evpose.core.importers.common import (
+    TIME_UNITS,
+    ImportContext,
+    ImportFailure,
+    SceneBuilder,
+    float_to_us,
+    load_camera,
+    read_pose_text,
+    resolve_time_unit,
+    result_summary,
+    wrap_errors,
+)
 from evpose.core.importers.epose_bag import collect_objects
 
 BLOCK_BYTES = 4 << 20

@@ -41,7 +41,20 @@ import numpy as np
 
 from evpose.core.data.camera import CameraError, CameraModel
 from evpose.core.data.geometry import make_T
-from evpose.core.importers.common import (ImportContext, ImportFailure, SceneBuilder, check_T, chordal_mean, derive_camera_trajectory, load_camera, make_trajectory, parse_objects_arg, poses_from_matrices, result_summary, wrap_errors)
+from evpose.core.importers.common import (
+    ImportContext,
+    ImportFailure,
+    SceneBuilder,
+    check_T,
+    chordal_mean,
+    derive_camera_trajectory,
+    load_camera,
+    make_trajectory,
+    parse_objects_arg,
+    poses_from_matrices,
+    result_summary,
+    wrap_errors,
+)
 
 XMASK, YSHIFT, PSHIFT = 0x3FFF, 14, 28
 #: YCB-Video object ids (BOP ycbv) -> names.

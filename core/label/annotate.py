@@ -26,8 +26,9 @@ import numpy as np
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import EventArray
 from evpose.core.data.geometry import apply_T
-from evpose.core.label.raster import Rasterizer
 from evpose.core.data.trajectory import ClockModel
+from evpose.core.errors import InputError
+from evpose.core.label.raster import Rasterizer
 
 LABEL_AT = ("center", "end", "start")
 #: Shortest window the command line accepts (``--window-ms``), ms: poses are sampled every few ms, so
@@ -40,7 +41,7 @@ MIN_WINDOW_MS = 0.1
 MAX_WINDOWS = 10_000_000
 
 
-class WindowError(ValueError):
+class WindowError(InputError):
     """A window tiling that cannot be built (non-positive length, too many windows)."""
 
 

@@ -28,12 +28,12 @@ from scipy.spatial.transform import Rotation, Slerp
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import Cancelled, EventArray, EventWriter
 from evpose.core.data.fileio import with_path
-from evpose.core.sim.evsim import EventSimulator, SensorParams
 from evpose.core.data.geometry import apply_T, inv_T, make_T
 from evpose.core.data.objects import ObjectModel, box_model, cylinder_model
-from evpose.core.label.raster import Rasterizer
 from evpose.core.data.scene import SCENE_FILENAME, ObjectSpec, SceneManifest
 from evpose.core.data.trajectory import ClockModel, Trajectory
+from evpose.core.label.raster import Rasterizer
+from evpose.core.sim.evsim import EventSimulator, SensorParams
 
 GROUND_TRUTH_FILENAME = "ground_truth.json"
 GROUND_TRUTH_FORMAT = "evpose-ground-truth/1"

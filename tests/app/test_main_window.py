@@ -192,9 +192,9 @@ def test_auto_sync_then_edges_is_a_second_undo_step(qtbot, window, scene_copy):
     """Auto, accepted with "then refine from edges": the edge fit starts from the estimate and is
     its own proposal and undo step. The tiny scene's object poses are 5 mm / 3 deg off, so they
     are set to the truth first (the edges assume right poses)."""
-    from evpose.core.document.corrections import Corrections
     from evpose.core.data.geometry import inv_T
     from evpose.core.data.scene import Scene
+    from evpose.core.document.corrections import Corrections
 
     gt = load_ground_truth(scene_copy)
     sc = Scene.open(scene_copy)

@@ -3,9 +3,9 @@ import cv2
 import numpy as np
 import pytest
 
-from evpose.core.label.annotate import Annotator, Request, count_windows, label_time, mask_bbox, time_windows
 from evpose.core.data.geometry import apply_T, inv_T
 from evpose.core.data.scene import Scene
+from evpose.core.label.annotate import Annotator, Request, count_windows, label_time, mask_bbox, time_windows
 from evpose.core.sim.synth import load_ground_truth
 
 

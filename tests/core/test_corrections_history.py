@@ -3,8 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from evpose.core.document.corrections import Corrections, CorrectionsError, ReviewMark
 from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.document.corrections import Corrections, CorrectionsError, ReviewMark
 from evpose.core.document.history import Group, History, SetValue
 
 

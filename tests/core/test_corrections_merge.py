@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
+from evpose.core.data.geometry import T_from_rotvec
 from evpose.core.document.corrections import Corrections, ReviewMark
 from evpose.core.document.corrections_merge import CorrectionsConflict, merge
-from evpose.core.data.geometry import T_from_rotvec
 from evpose.core.document.review import insert_mark
 
 

@@ -217,9 +217,9 @@ def test_export_file_mode_fsyncs_every_file(tiny_scene_dir, tmp_path, monkeypatc
 
 
 def test_h5_export_fsyncs_the_partial_before_renaming_it(tiny_scene_dir, tmp_path, monkeypatch):
-    from evpose.core.export import export_scene
-
     import h5py
+
+    from evpose.core.export import export_scene
 
     out = tmp_path / "ex"
     rec = Recorder(monkeypatch)
@@ -248,8 +248,8 @@ def test_journal_cut_at_every_byte_of_its_last_line(tiny_scene_dir, tmp_path):
     """The export journal cut at each byte boundary of its last line (a crash while appending): the resume
     redoes that window unless the line is whole JSON, leaves a journal that parses entirely, and the
     folder ends byte-identical to an uninterrupted export."""
-    from evpose.core.export import export_scene
     from evpose.core.data.scene import Scene
+    from evpose.core.export import export_scene
 
     out = tmp_path / "ex"
     kw = dict(window_us=200_000, objects="box")

@@ -14,8 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import evpose.core.data.events as ce
-from evpose.core.data.events import (Cancelled, EventArray, EventFileError, EventStore, EventWriter, write_events_h5)
-
+from evpose.core.data.events import Cancelled, EventArray, EventFileError, EventStore, EventWriter, write_events_h5
 
 pytestmark = pytest.mark.usefixtures("private_cache")
 cache_file = msidx_cache_file

@@ -10,13 +10,13 @@ import cv2
 import pytest
 from scipy.io import loadmat
 
-from evpose.core.label.annotate import Window
-from evpose.core.document.corrections import ReviewMark
-from evpose.core.data.events import Cancelled
-from evpose.core.export import ExportError, export_scene
 from evpose.app.cli.export import add_export_parser
-from evpose.core.export.common import UNLABELED_AFTER, UNLABELED_BEFORE, verified_mask
+from evpose.core.data.events import Cancelled
 from evpose.core.data.scene import Scene
+from evpose.core.document.corrections import ReviewMark
+from evpose.core.export import ExportError, export_scene
+from evpose.core.export.common import UNLABELED_AFTER, UNLABELED_BEFORE, verified_mask
+from evpose.core.label.annotate import Window
 
 
 # ----------------------------------------------------------------------------------------- helpers

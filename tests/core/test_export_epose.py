@@ -14,11 +14,11 @@ from scipy.io import loadmat
 from scipy.ndimage import binary_fill_holes
 from scipy.spatial.transform import Rotation, Slerp
 
-from evpose.core.document.corrections import ReviewMark
 from evpose.core.data.events import EventStore
+from evpose.core.data.scene import Scene
+from evpose.core.document.corrections import ReviewMark
 from evpose.core.export import export_scene
 from evpose.core.export.epose import EPOSE_CORNER_ORDER
-from evpose.core.data.scene import Scene
 from evpose.core.sim.synth import load_ground_truth
 
 OFFSET_US = 20_000  # the tiny scene's true clock offset (the manifest prior is 0)

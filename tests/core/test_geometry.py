@@ -2,7 +2,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evpose.core.data.geometry import (GeometryError, T_from_rotvec, apply_T, inv_T, make_T, orthonormalize, pose_error, rotation_angle, rotation_residual, validate_T)
+from evpose.core.data.geometry import (
+    GeometryError,
+    T_from_rotvec,
+    apply_T,
+    inv_T,
+    make_T,
+    orthonormalize,
+    pose_error,
+    rotation_angle,
+    rotation_residual,
+    validate_T,
+)
 
 
 def random_T(rng, n=None):

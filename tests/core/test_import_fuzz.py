@@ -13,13 +13,22 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_importers import (src, write_bag, write_dsec, write_dsec_yaml, write_epose_export, write_npz,  # noqa: F401
-                            write_rpg, write_tum, write_ycbev)
+from test_importers import (  # noqa: F401
+    src,
+    write_bag,
+    write_dsec,
+    write_dsec_yaml,
+    write_epose_export,
+    write_npz,
+    write_rpg,
+    write_tum,
+    write_ycbev,
+)
 
 from evpose.core.data.events import EventStore
-from evpose.core.importers import ImportFailure, import_scene
 from evpose.core.data.scene import load_manifest
 from evpose.core.data.trajectory import Trajectory
+from evpose.core.importers import ImportFailure, import_scene
 
 N_EVENTS = 3000
 

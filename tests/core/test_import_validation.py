@@ -7,13 +7,22 @@ import json
 
 import numpy as np
 import pytest
-from test_importers import (assert_events_equal, assert_traj_equal, no_leftovers, read_scene, src,  # noqa: F401
-                            write_bag, write_epose_export, write_npz, write_rpg)
+from test_importers import (  # noqa: F401
+    assert_events_equal,
+    assert_traj_equal,
+    no_leftovers,
+    read_scene,
+    src,
+    write_bag,
+    write_epose_export,
+    write_npz,
+    write_rpg,
+)
 
 from evpose.core.data.events import Cancelled, EventArray
+from evpose.core.data.trajectory import Trajectory
 from evpose.core.importers import ImportFailure, import_scene
 from evpose.core.importers.common import guess_time_unit, parse_yaml_subset
-from evpose.core.data.trajectory import Trajectory
 
 
 def _npz(src, tmp_path, **kw):

@@ -17,9 +17,9 @@ from scipy.spatial.transform import Rotation
 
 from evpose.core.data.events import EventStore
 from evpose.core.data.geometry import inv_T, make_T, pose_error
-from evpose.core.importers import REPORT_FILENAME, ImportFailure, import_scene
 from evpose.core.data.scene import Scene, load_manifest
 from evpose.core.data.trajectory import Trajectory
+from evpose.core.importers import REPORT_FILENAME, ImportFailure, import_scene
 
 TOL = 1e-9
 
@@ -106,7 +106,13 @@ def write_bag(path: Path, ev, traj, *, msg_events=20_000, width=None, height=Non
     """ROS1 bag with rosbags' writer; messages serialised by rosbags (per-event objects) unless numpy_encode."""
     from rosbags.rosbag1 import Writer
 
-    from evpose.core.importers.epose_bag import (EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, dvs_typestore, encode_event_array, encode_pose_stamped)
+    from evpose.core.importers.epose_bag import (
+        EVENT_ARRAY_TYPE,
+        POSE_STAMPED_TYPE,
+        dvs_typestore,
+        encode_event_array,
+        encode_pose_stamped,
+    )
 
     ts = dvs_typestore()
     T = ts.types
@@ -370,7 +376,7 @@ def test_bag_compressed_chunks(src, tmp_path, compression):
 
 
 def test_event_array_parser_matches_rosbags(src):
-    from evpose.core.importers.epose_bag import (EVENT_ARRAY_TYPE, dvs_typestore, encode_event_array, parse_event_array)
+    from evpose.core.importers.epose_bag import EVENT_ARRAY_TYPE, dvs_typestore, encode_event_array, parse_event_array
 
     ts = dvs_typestore()
     T = ts.types
@@ -722,7 +728,12 @@ def test_bag_unfamiliar_event_definition_uses_rosbags(src, tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from evpose.core.importers.epose_bag import (EVENT_ARRAY_MSG, EVENT_ARRAY_TYPE, POSE_STAMPED_TYPE, encode_pose_stamped)
+    from evpose.core.importers.epose_bag import (
+        EVENT_ARRAY_MSG,
+        EVENT_ARRAY_TYPE,
+        POSE_STAMPED_TYPE,
+        encode_pose_stamped,
+    )
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     ts.register({**get_types_from_msg("uint16 x\nuint16 y\ntime ts\nbool polarity\nuint8 extra\n", "dvs_msgs/msg/Event"),

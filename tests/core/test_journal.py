@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from evpose.core.document.corrections import Corrections
 from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.document.corrections import Corrections
 from evpose.core.session import Session
 
 

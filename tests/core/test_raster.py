@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.geometry import T_from_rotvec, apply_T, make_T
 from evpose.core.data.objects import ObjectModel, box_model, cylinder_model
-from evpose.core.label.raster import RasterResult, Rasterizer, _distort32_fn, _distort_fn
+from evpose.core.label.raster import Rasterizer, RasterResult, _distort32_fn, _distort_fn
 
 o3d = pytest.importorskip("open3d")
 

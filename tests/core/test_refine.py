@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from evpose.core.align import refine
-from evpose.core.document.corrections import Corrections
 from evpose.core.data.events import Cancelled
 from evpose.core.data.geometry import inv_T, pose_error
 from evpose.core.data.objects import box_model
 from evpose.core.data.scene import Scene
+from evpose.core.document.corrections import Corrections
 from evpose.core.sim.synth import load_ground_truth
 
 FAST = refine.RefineParams(n_windows=12)
@@ -83,6 +83,7 @@ def test_refine_box_on_tiny_scene(tiny):
 
 def test_refine_real_mesh(models_dir, tmp_path_factory):
     from evpose_testing import half_davis_camera
+
     from evpose.core.sim.synth import SynthConfig, generate
 
     out = tmp_path_factory.mktemp("refine") / "sugar"

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evpose.core.label import represent as R
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import EventArray
+from evpose.core.label import represent as R
 
 W, H = 346, 260          # DAVIS346; W != H so that an x/y swap cannot pass
 

@@ -4,12 +4,19 @@ import json
 
 import pytest
 
-from evpose.core.label.annotate import Window
-from evpose.core.document.corrections import Corrections, ReviewMark
-from evpose.core.export import export_scene
 from evpose.app.cli.export import summary_text
-from evpose.core.export.common import (REVIEW_MIXED, REVIEW_NO_LABEL, REVIEW_PARTLY, REVIEW_STALE, review_usage, verified_mask)
+from evpose.core.document.corrections import Corrections, ReviewMark
 from evpose.core.document.review import MarkState, effective_status, grid_window, insert_mark, normalize_marks
+from evpose.core.export import export_scene
+from evpose.core.export.common import (
+    REVIEW_MIXED,
+    REVIEW_NO_LABEL,
+    REVIEW_PARTLY,
+    REVIEW_STALE,
+    review_usage,
+    verified_mask,
+)
+from evpose.core.label.annotate import Window
 from evpose.core.session import Session
 
 

@@ -6,9 +6,9 @@ import tomli_w
 
 from evpose.core.data.events import EventArray, write_events_h5
 from evpose.core.data.geometry import T_from_rotvec, apply_T, inv_T
-from evpose.core.document.history import History
 from evpose.core.data.scene import Scene, SceneError, load_manifest
 from evpose.core.data.trajectory import Trajectory
+from evpose.core.document.history import History
 
 T0 = 1_700_000_000_000_000
 

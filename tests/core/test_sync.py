@@ -17,9 +17,9 @@ from scipy.spatial.transform import Rotation
 from evpose.core.align import sync
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import EventArray, EventWriter, write_events_h5
-from evpose.core.document.history import History
 from evpose.core.data.scene import Scene, SceneManifest
 from evpose.core.data.trajectory import ClockModel, Trajectory
+from evpose.core.document.history import History
 
 T0_POSE = 1_700_000_000_000_000   # epoch pose clock: precision problems would show
 FX = 60.0

@@ -4,12 +4,20 @@ import json
 import numpy as np
 import pytest
 
-from evpose.core.label.annotate import Annotator, Request, time_windows
 from evpose.core.data.events import Cancelled, EventStore
 from evpose.core.data.geometry import pose_error, rotation_angle
 from evpose.core.data.scene import Scene
-from evpose.core.sim.synth import (NOISE_STEP_US, SynthConfig, _render_times, generate, load_ground_truth, make_motion, make_trajectory)
 from evpose.core.data.trajectory import ClockModel
+from evpose.core.label.annotate import Annotator, Request, time_windows
+from evpose.core.sim.synth import (
+    NOISE_STEP_US,
+    SynthConfig,
+    _render_times,
+    generate,
+    load_ground_truth,
+    make_motion,
+    make_trajectory,
+)
 
 
 def test_scene_files_and_ground_truth(tiny_scene_dir):

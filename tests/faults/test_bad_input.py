@@ -19,11 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-import hdf5plugin  # noqa: F401  (the tiny scene's events are Blosc-compressed)
 import h5py
+import hdf5plugin  # noqa: F401  (the tiny scene's events are Blosc-compressed)
 import numpy as np
 import pytest
-
 from fault_harness import assert_clean_error, assert_ok, run_cli, snapshot
 
 TIMEOUT = 60          # every case answers in 1-3 s; a hang fails the case instead of blocking the suite

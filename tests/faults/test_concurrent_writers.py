@@ -19,11 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evpose.core.document.corrections import Corrections, CorrectionsWarning
-from evpose.core.document.corrections_file import LOCK_TIMEOUT_S, locked
 from evpose.core.data.geometry import T_from_rotvec
 from evpose.core.data.scene import Scene
-
+from evpose.core.document.corrections import Corrections, CorrectionsWarning
+from evpose.core.document.corrections_file import LOCK_TIMEOUT_S, locked
 
 
 def _harness():

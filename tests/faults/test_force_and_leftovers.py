@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from fault_harness import EVPOSE, assert_clean_error, assert_ok, run_cli, snapshot
 
 # ------------------------------------------------------------------------------------------- sources

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from fault_harness import assert_clean_error, assert_ok, run_cli, snapshot
 
 MB = 1 << 20

@@ -15,15 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fault_harness import assert_ok, run_cli, snapshot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from evpose.core.label.annotate import time_windows
 from evpose.core.data.scene import Scene, SceneError, load_manifest
 from evpose.core.data.trajectory import MAX_GAP_STEPS, Trajectory, default_max_gap_us
-
-from fault_harness import assert_ok, run_cli, snapshot
+from evpose.core.label.annotate import time_windows
 
 HOLE_US = 200_000
 
