@@ -57,13 +57,6 @@ def T_from_rotvec(rotvec_rad, t_m=(0.0, 0.0, 0.0)) -> np.ndarray:
     return make_T(Rotation.from_rotvec(np.asarray(rotvec_rad, dtype=np.float64)).as_matrix(), t_m)
 
 
-def T_from_quat(position_m: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
-    """Transforms from positions ``(..., 3)`` and scalar-last quaternions ``(..., 4)`` (normalised here)."""
-    R = Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64).reshape(-1, 4)).as_matrix()
-    position_m = np.asarray(position_m, dtype=np.float64)
-    return make_T(R.reshape(position_m.shape[:-1] + (3, 3)), position_m)
-
-
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Rotation angle in radians of ``R (..., 3, 3)``, robust near 0 and pi (via scipy)."""
     R = np.asarray(R, dtype=np.float64)

@@ -153,10 +153,6 @@ class ObjectModel:
             best = max(best, float(d.max()))
         return best
 
-    @cached_property
-    def triangle_count(self) -> int:
-        return len(self.faces)
-
 
 #: Procedural meshes are split until no edge is longer than this: same surface, but triangles
 #: small on screen, which the rasteriser handles fastest (a 12-triangle box seen from 0.3 m has
