@@ -1,4 +1,4 @@
-"""Benchmark of evpose.core.data.events.EventStore against the naive "load everything, then np.searchsorted" baseline.
+"""Benchmark of evpose.core.data.event_store.EventStore against the naive "load everything, then np.searchsorted" baseline.
 
 Usage::
 
@@ -41,7 +41,9 @@ def _heavy():
     import hdf5plugin  # noqa: F401
     import numpy as np
 
-    from evpose.core.data.events import DEFAULT_CHUNK_EVENTS, EventArray, EventStore, write_events_h5
+    from evpose.core.data.event_store import EventStore
+    from evpose.core.data.event_writer import DEFAULT_CHUNK_EVENTS, write_events_h5
+    from evpose.core.data.events import EventArray
 
 
 # ------------------------------------------------------------------------------------------------ data
@@ -144,11 +146,12 @@ def stage_time(n_events, n_windows):
     r["open_build"] = float(np.median([open_close(no_idx, first=True) for _ in range(3)]))
     r["open_cached"] = float(np.median([open_close(no_idx) for _ in range(5)]))
     r["open_index_cached"] = float(np.median([open_close(with_idx) for _ in range(5)]))
-    import evpose.core.data.events as ce
+    from evpose.core.data.event_index import scan_index
+    from evpose.core.data.event_validation import scan_values
     with h5py.File(with_idx, "r") as f:          # the two halves of the first-open pass, alone
         ds = {k: f[f"events/{k}"] for k in "xyp"}
-        r["scan_t"] = timed(ce._scan_index, with_idx, f["events/t"], 0)[0]
-        r["scan_xyp"] = timed(ce._scan_values, with_idx, ds)[0]
+        r["scan_t"] = timed(scan_index, with_idx, f["events/t"], 0)[0]
+        r["scan_xyp"] = timed(scan_values, with_idx, ds)[0]
 
     with EventStore(with_idx) as s:             # a fresh store: cold HDF5 chunk cache
         r["duration_s"] = (s.t_last_us - s.t_first_us) * 1e-6
@@ -207,7 +210,7 @@ def report(cols, n_windows):
     def row(label, fmt):
         return f"{label:46}" + "".join(f"{fmt(r):>30}" for r in cols)
     lines = [
-        f"evpose.core.data.events benchmark ({os.cpu_count()} cores; HDF5 chunk {big['chunk']} events, Blosc-LZ4, "
+        f"evpose.core.data.event_store benchmark ({os.cpu_count()} cores; HDF5 chunk {big['chunk']} events, Blosc-LZ4, "
         "uint32 t + t_offset; warm OS page cache)",
         row("", lambda r: f"{r['n'] / 1e6:.0f} M events"),
         row("file size, duration, mean rate", lambda r: f"{r['size_mb']:.0f} MB {r['duration_s']:.1f} s "

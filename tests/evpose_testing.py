@@ -25,6 +25,6 @@ def msidx_cache_file(path):
     import hashlib
     from pathlib import Path
 
-    import evpose.core.data.events as ce
+    from evpose.core.data.event_index import default_cache_dir
 
-    return ce.default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"
+    return default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"

@@ -17,8 +17,10 @@ from evpose_testing import msidx_cache_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import evpose.core.data.events as ce
-from evpose.core.data.events import EventFileError, EventStore
+import evpose.core.data.event_index as ei
+import evpose.core.data.event_validation as ev_val
+from evpose.core.data.event_store import EventStore
+from evpose.core.data.events import EventFileError
 
 W, H = 346, 260
 
@@ -51,7 +53,7 @@ def write(path, cols, *, with_index=False, chunks=(256,)):
 
 def counting(monkeypatch):
     calls = {"t": 0, "xyp": 0}
-    real_t, real_v = ce._scan_index, ce._scan_values
+    real_t, real_v = ev_val.scan_index, ev_val.scan_values
 
     def scan_t(*a, **k):
         calls["t"] += 1
@@ -60,8 +62,8 @@ def counting(monkeypatch):
     def scan_v(*a, **k):
         calls["xyp"] += 1
         return real_v(*a, **k)
-    monkeypatch.setattr(ce, "_scan_index", scan_t)
-    monkeypatch.setattr(ce, "_scan_values", scan_v)
+    monkeypatch.setattr(ev_val, "scan_index", scan_t)
+    monkeypatch.setattr(ev_val, "scan_values", scan_v)
     return calls
 
 
@@ -142,7 +144,7 @@ def test_without_a_sensor_size_only_sensor_independent_checks_apply(tmp_path):
 @given(n=st.integers(2, 3000), data=st.data(), kind=st.sampled_from(["x", "y", "p", "t"]),
        scan_chunk=st.sampled_from([1, 7, 256, 2**21]))
 def test_property_the_first_bad_event_is_named(tmp_path_factory, monkeypatch, n, data, kind, scan_chunk):
-    monkeypatch.setattr(ce, "_SCAN_CHUNK_EVENTS", scan_chunk)
+    monkeypatch.setattr(ei, "SCAN_CHUNK_EVENTS", scan_chunk)
     d = tmp_path_factory.mktemp("prop")
     cols = events(n, seed=n)
     first = data.draw(st.integers(1, n - 1), label="first bad index")

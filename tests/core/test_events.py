@@ -1,4 +1,4 @@
-"""Tests of evpose.core.data.events: EventArray, EventStore (lazy ms-indexed reader), EventWriter (atomic streaming writer)."""
+"""Tests of the event modules: EventArray (events), EventStore (event_store: lazy ms-indexed reader), EventWriter (event_writer: atomic streaming writer)."""
 import hashlib
 import os
 import tempfile
@@ -13,8 +13,13 @@ from evpose_testing import msidx_cache_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import evpose.core.data.events as ce
-from evpose.core.data.events import Cancelled, EventArray, EventFileError, EventStore, EventWriter, write_events_h5
+import evpose.core.data.event_index as ei
+import evpose.core.data.event_store as es
+import evpose.core.data.event_validation as ev_val
+import evpose.core.data.event_writer as ew
+from evpose.core.data.event_store import EventStore
+from evpose.core.data.event_writer import EventWriter, write_events_h5
+from evpose.core.data.events import Cancelled, EventArray, EventFileError
 
 pytestmark = pytest.mark.usefixtures("private_cache")
 cache_file = msidx_cache_file
@@ -305,12 +310,12 @@ def test_ten_million_events_in_one_millisecond(tmp_path):
 # ----------------------------------------------------------------------------------------------- ms index cache
 def counting_scan(monkeypatch):
     calls = []
-    real = ce._scan_index
+    real = ev_val.scan_index
 
     def scan(*a, **k):
         calls.append(a[0])
         return real(*a, **k)
-    monkeypatch.setattr(ce, "_scan_index", scan)
+    monkeypatch.setattr(ev_val, "scan_index", scan)
     return calls
 
 
@@ -353,13 +358,13 @@ def test_unwritable_directory_falls_back_to_cache_dir(tmp_path, monkeypatch):
     path = write_raw(ro / "ev.h5", ev)
     os.chmod(ro, 0o555)
     if os.geteuid() == 0:   # root ignores permission bits: emulate the kernel's refusal for that directory
-        real = ce._write_npz_atomic
+        real = ev_val.write_npz_atomic
 
         def refuse(target, **arrays):
             if Path(target).parent == ro:
                 raise PermissionError(13, "Permission denied", str(target))
             return real(target, **arrays)
-        monkeypatch.setattr(ce, "_write_npz_atomic", refuse)
+        monkeypatch.setattr(ev_val, "write_npz_atomic", refuse)
     calls = counting_scan(monkeypatch)
     try:
         before = file_state(path)
@@ -419,7 +424,7 @@ def test_file_index_inconsistent_is_ignored_and_short_one_completed(tmp_path):
 # ----------------------------------------------------------------------------------------------- uint32 wrap
 @pytest.mark.parametrize("scan_chunk", [2**21, 5, 1])
 def test_uint32_wrap_is_unwrapped(tmp_path, monkeypatch, scan_chunk):
-    monkeypatch.setattr(ce, "_SCAN_CHUNK_EVENTS", scan_chunk)
+    monkeypatch.setattr(ei, "SCAN_CHUNK_EVENTS", scan_chunk)
     off = 10**12
     t_rel = np.concatenate([2**32 - 2500 + np.arange(0, 2500, 97), 2**32 + np.arange(0, 3000, 101)])
     ev = make_events(off + t_rel)
@@ -447,7 +452,7 @@ def test_uint32_wrap_is_unwrapped(tmp_path, monkeypatch, scan_chunk):
 @pytest.mark.parametrize("scan_chunk", [2**21, 4])
 @pytest.mark.parametrize("t_dtype", ["int64", "uint32"])
 def test_unsorted_times_raise_naming_file_and_field(tmp_path, monkeypatch, scan_chunk, t_dtype):
-    monkeypatch.setattr(ce, "_SCAN_CHUNK_EVENTS", scan_chunk)
+    monkeypatch.setattr(ei, "SCAN_CHUNK_EVENTS", scan_chunk)
     t = np.arange(1000, 1100, dtype=np.int64) * 10
     t[40] = t[39] - 5       # drop by 5 µs: neither sorted nor a uint32 wrap
     path = write_raw(tmp_path / "unsorted.h5", make_events(t), t_dtype=t_dtype, chunks=(4,))
@@ -502,7 +507,7 @@ def leftovers(d):
 
 
 def test_writer_cancel_and_progress(tmp_path, monkeypatch):
-    monkeypatch.setattr(ce, "_FLUSH_EVENTS", 100)
+    monkeypatch.setattr(ew, "_FLUSH_EVENTS", 100)
     seen, stop = [], [False]
     ev = make_events(np.arange(1000) * 3)
     w = EventWriter(tmp_path / "c.h5", chunk_events=50, progress=lambda n, tot: seen.append((n, tot)),
@@ -583,8 +588,8 @@ def test_writer_copies_reused_buffers(tmp_path):
        layout=st.sampled_from(["writer-int64", "writer-uint32", "raw-int64-noindex", "raw-uint32-index"]))
 def test_property_window_equals_searchsorted_oracle(data, steps, start, layout):
     ev = make_events(start + np.cumsum(steps))
-    with tempfile.TemporaryDirectory() as d, mock.patch.object(ce, "_SCAN_CHUNK_EVENTS", 7), \
-            mock.patch.object(ce, "_BISECT_MAX", 4):
+    with tempfile.TemporaryDirectory() as d, mock.patch.object(ei, "SCAN_CHUNK_EVENTS", 7), \
+            mock.patch.object(es, "_BISECT_MAX", 4):
         path = Path(d) / "e.h5"
         if layout.startswith("writer"):
             write_events_h5(path, ev, time_dtype=layout[7:], chunk_events=16)

@@ -14,7 +14,7 @@ from scipy.io import loadmat
 from scipy.ndimage import binary_fill_holes
 from scipy.spatial.transform import Rotation, Slerp
 
-from evpose.core.data.events import EventStore
+from evpose.core.data.event_store import EventStore
 from evpose.core.data.scene import Scene
 from evpose.core.document.corrections import ReviewMark
 from evpose.core.export import export_scene
