@@ -407,7 +407,7 @@ class Session:
         data["autosaved_at"] = time.time()
         data["base"] = doc.base
         data["base_revision"] = doc.revision
-        from evpose.core.data.fileio import atomic_write_text
+        from evpose.core.data.atomic import atomic_write_text
 
         try:
             return atomic_write_text(self.journal_path, json.dumps(data, indent=1))

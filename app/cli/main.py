@@ -312,7 +312,7 @@ def main(argv=None) -> int:
         print(f"evpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:          # the system refused a write or read: full disk, read-only, permission
-        from evpose.core.data.fileio import describe_os_error
+        from evpose.core.data.os_errors import describe_os_error
 
         print(f"evpose {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
         return EXIT_OS_ERROR

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evpose.core.data.atomic import atomic_write_text
 from evpose.core.data.camera import CameraError, CameraModel
-from evpose.core.data.fileio import atomic_write_text
 from evpose.core.data.geometry import (
     ROTATION_TOLERANCE,
     GeometryError,

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from evpose.core.data.fileio import atomic_write_text
+from evpose.core.data.atomic import atomic_write_text
 from evpose.core.data.geometry import make_T
 from evpose.core.errors import InputError
 

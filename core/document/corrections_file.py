@@ -14,7 +14,7 @@
    :class:`~evpose.core.document.corrections_merge.CorrectionsConflict` naming the field and both values. A file that
    cannot be read is never overwritten.
 4. It writes the result with the next revision (one more than the larger of the two) through
-   :func:`evpose.core.data.fileio.atomic_path`: temp file in the same folder, ``fsync`` of the temp file, atomic
+   :func:`evpose.core.data.atomic.atomic_path`: temp file in the same folder, ``fsync`` of the temp file, atomic
    rename over the target, ``fsync`` of the folder. A reader sees the old or the new file, never a
    mix; after a crash at any point the old or the new file is on disk.
 """
@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from evpose.core.data.fileio import atomic_path
+from evpose.core.data.atomic import atomic_path
 from evpose.core.document.corrections import CORRECTIONS_FORMAT, Corrections, CorrectionsError
 
 #: Seconds a save waits for another writer's lock before giving up with a message.

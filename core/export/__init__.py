@@ -87,7 +87,7 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
         (``syncfs``) before the parent journals the chunk as complete, so a journaled window is
         durable (one commit per chunk instead of one fsync per file: per-file fsync costs 2-3 ms on
         the development disk, i.e. 30+ ms for the 13 files of a 3-object E-POSE window). "file":
-        fsync every file before its rename (``evpose.core.data.fileio.atomic_path`` semantics). ``False`` /
+        fsync every file before its rename (``evpose.core.data.atomic.atomic_path`` semantics). ``False`` /
         "none": no fsync at all.
 
     Returns

@@ -42,16 +42,9 @@ import time
 
 import numpy as np
 
+from evpose.core.data.atomic import AtomicBatch, write_atomic
 from evpose.core.data.geometry import inv_T
-from evpose.core.export.common import (
-    AtomicBatch,
-    ExportError,
-    FormatWriter,
-    encode_png,
-    evpose_version,
-    json_text,
-    write_atomic,
-)
+from evpose.core.export.common import ExportError, FormatWriter, encode_png, evpose_version, json_text
 from evpose.core.label.annotate import Request
 from evpose.core.label.represent import polarity_counts, undistorter_for
 

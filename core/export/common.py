@@ -36,7 +36,7 @@ Every file is written to a hidden temp file beside its target (``.<name>.<pid>-<
 into place, so a reader never sees a partial file; the files of one window are renamed in order, its
 last file last. Durability across a power cut (``durable``): "batch" (default) syncs the filesystem
 (``syncfs``) before the parent fsyncs the journal lines of a chunk of windows, so a journaled window is
-on disk; "file" fsyncs every file before its rename, like :func:`evpose.core.data.fileio.atomic_path` (2-3 ms per
+on disk; "file" fsyncs every file before its rename, like :func:`evpose.core.data.atomic.atomic_path` (2-3 ms per
 file on the development disk: 30+ ms per 3-object E-POSE window); "none" never syncs.
 
 Processes
@@ -52,7 +52,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
-import itertools
 import json
 import math
 import os
@@ -64,15 +63,12 @@ from typing import Callable
 
 import numpy as np
 
+from evpose.core.data.atomic import sync_filesystem, write_atomic
 from evpose.core.data.events import Cancelled, EventArray
-from evpose.core.data.fileio import TEMP_RE, fsync_dir, sync_filesystem, with_path
-from evpose.core.data.owned_files import (
-    OwnedLog,
-    held_input,
-    in_the_way,
-    inventory,
-    remove_owned,
-)
+from evpose.core.data.os_errors import with_path
+from evpose.core.data.owned_files import held_input, in_the_way, inventory, remove_owned
+from evpose.core.data.owned_log import OwnedLog
+from evpose.core.data.temp_files import clean_temp_files
 from evpose.core.data.trajectory import REASON_AFTER, REASON_BEFORE
 from evpose.core.document.corrections import Corrections
 from evpose.core.errors import InputError
@@ -87,7 +83,7 @@ from evpose.core.label.annotate import (
 __all__ = [
     "EXPORT_LAYOUT_VERSION", "FORMATS", "STATE_DIR", "MANIFEST_NAME", "ExportError", "ExportSummary",
     "FormatWriter", "WindowTask", "evpose_version", "build_windows", "verified_mask", "review_usage", "export_fingerprint",
-    "clean_temp_files", "AtomicBatch", "encode_png", "savemat_bytes", "run_export",
+    "encode_png", "savemat_bytes", "run_export",
 ]
 
 EXPORT_LAYOUT_VERSION = 1
@@ -371,129 +367,6 @@ def fingerprint_sha(doc: dict) -> str:
 
 
 # ------------------------------------------------------------------------------------------- files
-def clean_temp_files(root) -> int:
-    """Remove leftovers of interrupted atomic writes under ``root``: evpose's temporary names only
-    (``.<name>.<pid>-<n>.tmp``, :data:`evpose.core.data.fileio.TEMP_RE`; a user's ``.notes.tmp`` stays). The caller
-    holds the folder's lock, so no other export writes there. Returns how many were removed."""
-    root = Path(root)
-    if not root.is_dir():
-        return 0
-    n = 0
-    for dirpath, _dirs, files in os.walk(root):
-        for f in files:
-            if TEMP_RE.match(f):
-                with contextlib.suppress(OSError):
-                    os.unlink(os.path.join(dirpath, f))
-                    n += 1
-    return n
-
-
-def _default_file_mode() -> int:
-    """``0o666`` minus the process umask: the mode ``open()`` would give a new file (``mkstemp``, used by
-    ``evpose.core.data.fileio.temp_path_for``, creates 0600 files, which would make the dataset unreadable to others)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return 0o666 & ~int(line.split()[1], 8)
-    except (OSError, ValueError):
-        pass
-    mask = os.umask(0o022)      # pragma: no cover - not Linux
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-FILE_MODE = _default_file_mode()
-
-
-class AtomicBatch:
-    """Write several files atomically: each goes to a hidden temp file beside its target
-    (same naming as ``evpose.core.data.fileio.temp_path_for``), is fsync'ed (``durable``), and only when all are written are they
-    renamed onto their targets, followed by one fsync of each directory. A reader never sees a partial
-    file; if anything raises (including KeyboardInterrupt) every temp file is removed and no target is
-    touched. Files are renamed in the order they were added, so the last one added appears last.
-    """
-
-    def __init__(self, durable: bool = True, log: OwnedLog | None = None):
-        self.durable = durable
-        self.log = log
-        self._pending: list[tuple[Path, Path]] = []
-        self._stats: list[tuple[Path, int, int]] = []
-
-    _counter = itertools.count(1)      # next() is atomic in CPython: unique names across threads
-
-    def _open_temp(self, path: Path) -> tuple[Path, int]:
-        """A new hidden temp file beside ``path`` (``.<name>.<pid>-<n>.tmp``, the pattern of
-        ``evpose.core.data.fileio.temp_path_for`` and of :func:`clean_temp_files`), created with O_EXCL and the
-        normal file mode in one call (mkstemp would cost a random name, a second open and a chmod)."""
-        while True:
-            tmp = path.with_name(f".{path.name}.{os.getpid()}-{next(AtomicBatch._counter)}.tmp")
-            try:
-                return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
-            except FileExistsError:          # a leftover of a killed process that had our pid
-                with contextlib.suppress(OSError):
-                    tmp.unlink()
-
-    def add(self, path, data) -> None:
-        path = Path(path)
-        try:
-            tmp, fd = self._open_temp(path)
-        except OSError as exc:
-            raise with_path(exc, path) from None
-        self._pending.append((tmp, path))
-        try:
-            view = memoryview(data)
-            while view:
-                k = os.write(fd, view)
-                view = view[k:]
-            if self.durable:
-                os.fsync(fd)
-            if self.log is not None:
-                st = os.fstat(fd)          # size and mtime stay as they are through the rename
-                self._stats.append((path, st.st_size, st.st_mtime_ns))
-        except OSError as exc:
-            raise with_path(exc, path) from None     # os.write errors name no file
-        finally:
-            os.close(fd)
-
-    def commit(self) -> None:
-        dirs = []
-        if self.log is not None:       # logged before they appear under their names (see evpose.core.data.owned_files)
-            self.log.files(self._stats)
-            self._stats = []
-        for i, (tmp, path) in enumerate(self._pending):
-            try:
-                os.replace(tmp, path)
-            except OSError as exc:
-                raise with_path(exc, path, replace_temp=tmp) from None
-            if path.parent not in dirs:
-                dirs.append(path.parent)
-        self._pending = []
-        if self.durable:
-            for d in dirs:
-                fsync_dir(d)
-
-    def discard(self) -> None:
-        for tmp, _ in self._pending:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
-        self._pending = []
-        self._stats = []
-
-    def __enter__(self) -> "AtomicBatch":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            try:
-                self.commit()
-            except BaseException:
-                self.discard()
-                raise
-        else:
-            self.discard()
-
-
 def durability_mode(durable) -> str:
     """``True``/"batch" -> "batch", "file" -> "file", ``False``/"none" -> "none"."""
     if durable is True or durable == "batch":
@@ -503,13 +376,6 @@ def durability_mode(durable) -> str:
     if durable is False or durable == "none" or durable is None:
         return "none"
     raise ExportError(f"durable: expected True, False, 'batch', 'file' or 'none', got {durable!r}")
-
-
-def write_atomic(path, data: bytes, durable: bool = True, log: OwnedLog | None = None) -> Path:
-    """One file through :class:`AtomicBatch` (logged in ``log`` before it appears)."""
-    with AtomicBatch(durable, log) as b:
-        b.add(path, data)
-    return Path(path)
 
 
 def json_text(obj, indent=1) -> str:

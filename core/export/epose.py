@@ -49,7 +49,8 @@ import time
 
 import numpy as np
 
-from evpose.core.export.common import AtomicBatch, ExportError, FormatWriter, encode_png, savemat_bytes, write_atomic
+from evpose.core.data.atomic import AtomicBatch, write_atomic
+from evpose.core.export.common import ExportError, FormatWriter, encode_png, savemat_bytes
 from evpose.core.label.annotate import Request
 
 #: Original E-POSE corner order p1..p8 as indices into :func:`evpose.core.data.objects.ObjectModel.bbox_corners`

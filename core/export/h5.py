@@ -39,8 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from evpose.core.data.fileio import ensure_free_space, fsync_dir, os_error_from_hdf5
-from evpose.core.export.common import ExportError, FormatWriter, evpose_version, write_atomic
+from evpose.core.data.atomic import fsync_dir, write_atomic
+from evpose.core.data.os_errors import ensure_free_space, os_error_from_hdf5
+from evpose.core.export.common import ExportError, FormatWriter, evpose_version
 from evpose.core.label.annotate import Request
 from evpose.core.label.represent import polarity_counts, three_channel, three_channel_rgb
 

@@ -41,9 +41,9 @@ from typing import Callable
 
 import numpy as np
 
+from evpose.core.data.atomic import atomic_write_text
 from evpose.core.data.camera import CameraError, CameraModel
 from evpose.core.data.events import Cancelled, EventArray, EventWriter
-from evpose.core.data.fileio import atomic_write_text
 from evpose.core.data.geometry import (
     ROTATION_TOLERANCE,
     make_T,
@@ -792,8 +792,8 @@ def import_inputs(sources, options: "ImportOptions") -> list[Path]:
 def check_out(out, force: bool, inputs=()) -> Path:
     """The absolute output folder; refuses an existing file or non-empty folder unless ``force``, and with
     ``force`` a folder that holds one of ``inputs`` or anything evpose did not write
-    (:func:`evpose.core.data.owned_files.check_scene_out`)."""
-    from evpose.core.data.owned_files import NotOurs, check_scene_out
+    (:func:`evpose.core.data.scene_folder.check_scene_out`)."""
+    from evpose.core.data.scene_folder import NotOurs, check_scene_out
 
     try:
         return check_scene_out(out, inputs, force)
@@ -804,7 +804,7 @@ def check_out(out, force: bool, inputs=()) -> Path:
 def _output_failure(exc: OSError, out: Path, staging: Path) -> ImportFailure | None:
     """An ``OSError`` of writing the scene (full disk, read-only, permission) as an ImportFailure naming
     ``out`` (the hidden staging folder is gone by then); None for other errors (e.g. reading an input)."""
-    from evpose.core.data.fileio import is_output_error
+    from evpose.core.data.os_errors import is_output_error
 
     if not is_output_error(exc):
         return None
@@ -826,7 +826,7 @@ class SceneBuilder:
     """
 
     def __init__(self, out, ctx: ImportContext):
-        from evpose.core.data.owned_files import StagingFolder
+        from evpose.core.data.scene_folder import StagingFolder
 
         self.ctx = ctx
         self.inputs = import_inputs(ctx.report.sources, ctx.options)
@@ -999,7 +999,7 @@ class SceneBuilder:
         return self.out
 
     def _place(self) -> None:
-        from evpose.core.data.owned_files import NotOurs
+        from evpose.core.data.scene_folder import NotOurs
 
         try:
             self.staging.commit(self.inputs, self.ctx.options.force)

@@ -27,9 +27,9 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import Cancelled, EventArray, EventWriter
-from evpose.core.data.fileio import with_path
 from evpose.core.data.geometry import apply_T, inv_T, make_T
 from evpose.core.data.objects import ObjectModel, box_model, cylinder_model
+from evpose.core.data.os_errors import with_path
 from evpose.core.data.scene import SCENE_FILENAME, ObjectSpec, SceneManifest
 from evpose.core.data.trajectory import ClockModel, Trajectory
 from evpose.core.label.raster import Rasterizer
@@ -393,13 +393,14 @@ def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
     """Simulate a scene into ``out_dir`` and return a summary (also stored in ground_truth.json).
 
     The folder is built beside ``out_dir`` under a hidden, locked name and renamed at the end
-    (:class:`evpose.core.data.owned_files.StagingFolder`), so a cancelled or failed run leaves nothing behind, and
+    (:class:`evpose.core.data.scene_folder.StagingFolder`), so a cancelled or failed run leaves nothing behind, and
     the leftovers of a killed run are removed by the next. ``overwrite`` replaces an existing scene
     folder only when it holds nothing but files evpose wrote (and not ``cfg.mesh_dir``); otherwise
-    :class:`evpose.core.data.owned_files.NotOurs` (a ``FileExistsError``) names what is in the way. A full or
+    :class:`evpose.core.data.scene_folder.NotOurs` (a ``FileExistsError``) names what is in the way. A full or
     read-only disk raises ``OSError`` naming ``out_dir``.
     """
-    from evpose.core.data.owned_files import StagingFolder, check_scene_out, input_paths
+    from evpose.core.data.owned_files import input_paths
+    from evpose.core.data.scene_folder import StagingFolder, check_scene_out
 
     cfg.validate()
     inputs = input_paths(cfg.mesh_dir)

@@ -35,7 +35,7 @@ def test_save_load_roundtrip_is_exact(tmp_path):
 def test_save_is_atomic_and_keeps_old_file_on_failure(tmp_path, monkeypatch):
     p = tmp_path / "corrections.json"
     Corrections(offset_us=5).save(p)
-    import evpose.core.data.fileio as fio
+    import evpose.core.data.atomic as fio
 
     def boom(*a, **k):
         raise OSError("disk full")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import evpose.core.data.fileio as fileio
+import evpose.core.data.atomic as atomic
 from evpose.core.export import common
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc/self/fd")
@@ -40,7 +40,7 @@ class Recorder:
         self.events: list[tuple] = []
         self.journal = journal
         real_fsync, real_replace, real_rename, real_write = os.fsync, os.replace, os.rename, os.write
-        real_syncfs = fileio.sync_filesystem
+        real_syncfs = atomic.sync_filesystem
 
         def fsync(fd):
             p = fd_path(fd)
@@ -69,7 +69,7 @@ class Recorder:
         monkeypatch.setattr(os, "replace", replace)
         monkeypatch.setattr(os, "rename", rename)
         monkeypatch.setattr(os, "write", write)
-        monkeypatch.setattr(fileio, "sync_filesystem", syncfs)
+        monkeypatch.setattr(atomic, "sync_filesystem", syncfs)
         monkeypatch.setattr(common, "sync_filesystem", syncfs)
 
     def _journal_text(self) -> str | None:
@@ -97,21 +97,21 @@ def assert_durable_rename(rec: Recorder, final: Path) -> None:
 def test_atomic_write_fsyncs_file_then_renames_then_fsyncs_folder(tmp_path, monkeypatch):
     rec = Recorder(monkeypatch)
     target = tmp_path / "corrections.json"
-    fileio.atomic_write_text(target, "{}")
+    atomic.atomic_write_text(target, "{}")
     assert_durable_rename(rec, target)
-    fileio.atomic_write_text(target, "{\"a\": 1}")       # replacing an existing file: same order
+    atomic.atomic_write_text(target, "{\"a\": 1}")       # replacing an existing file: same order
     rec.events.clear()
-    fileio.atomic_write_text(target, "{\"a\": 2}")
+    atomic.atomic_write_text(target, "{\"a\": 2}")
     assert_durable_rename(rec, target)
 
 
 def test_atomic_batch_fsyncs_each_file_logs_it_then_renames(tmp_path, monkeypatch):
-    from evpose.core.data.owned_files import OwnedLog
+    from evpose.core.data.owned_log import OwnedLog
 
     rec = Recorder(monkeypatch)
     log = OwnedLog(tmp_path, "export", "test")
     names = ["0001_event_image.png", "0001_bbox.txt", "0001_data.mat"]
-    with common.AtomicBatch(True, log) as b:
+    with atomic.AtomicBatch(True, log) as b:
         for n in names:
             b.add(tmp_path / n, n.encode() * 10)
     for n in names:
@@ -125,7 +125,8 @@ def test_atomic_batch_fsyncs_each_file_logs_it_then_renames(tmp_path, monkeypatc
 
 
 def test_event_writer_close(tmp_path, monkeypatch):
-    from evpose.core.data.events import EventArray, EventWriter
+    from evpose.core.data.event_writer import EventWriter
+    from evpose.core.data.events import EventArray
 
     rec = Recorder(monkeypatch)
     target = tmp_path / "events.h5"
@@ -136,7 +137,7 @@ def test_event_writer_close(tmp_path, monkeypatch):
 
 
 def test_scene_folder_synced_before_it_is_renamed_into_place(tmp_path, monkeypatch):
-    from evpose.core.data.owned_files import StagingFolder
+    from evpose.core.data.scene_folder import StagingFolder
 
     rec = Recorder(monkeypatch)
     st = StagingFolder(tmp_path / "scene", "import", "test")

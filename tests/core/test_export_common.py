@@ -149,9 +149,9 @@ def test_cancel_resume_identical_no_temp(small_scene, tmp_path):
 
 def test_keyboard_interrupt_leaves_no_partial_files(small_scene, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    from evpose.core.export import common
+    from evpose.core.data.atomic import AtomicBatch
 
-    orig = common.AtomicBatch.commit
+    orig = AtomicBatch.commit
     calls = {"n": 0}
 
     def commit(self):        # Ctrl-C in the middle of a window's renames
@@ -163,10 +163,10 @@ def test_keyboard_interrupt_leaves_no_partial_files(small_scene, tmp_path, monke
             raise KeyboardInterrupt
         return orig(self)
 
-    monkeypatch.setattr(common.AtomicBatch, "commit", commit)
+    monkeypatch.setattr(AtomicBatch, "commit", commit)
     with pytest.raises(KeyboardInterrupt):
         export_scene(small_scene, "epose", out, only_verified=True)
-    monkeypatch.setattr(common.AtomicBatch, "commit", orig)
+    monkeypatch.setattr(AtomicBatch, "commit", orig)
     assert no_temp_files(out)
     all_files_complete(out)
     assert len(list(out.glob("*_data.mat"))) == 3      # the 4th window never got its last file

@@ -317,7 +317,7 @@ def test_killed_imports_leave_nothing_that_blocks_the_next(big_npz, tmp_path):
 def test_killed_synth_and_trash_of_a_replaced_scene(tmp_path):
     """A ``.NAME.synth-PID-TAG`` of a dead synth is removed by the next run; a ``.NAME.replaced-PID-TAG``
     (a scene moved aside when the process died before putting the new one in place) is put back."""
-    from evpose.core.data.owned_files import StagingFolder, clean_stale_staging
+    from evpose.core.data.scene_folder import StagingFolder, clean_stale_staging
 
     dead = _dead_pid()
     stale = tmp_path / f".s.synth-{dead}-00aa11bb"
@@ -340,7 +340,7 @@ def test_killed_synth_and_trash_of_a_replaced_scene(tmp_path):
 
 _WRITER = r"""
 import sys, time
-from evpose.core.data.fileio import atomic_path
+from evpose.core.data.atomic import atomic_path
 with atomic_path(sys.argv[1]) as tmp:
     tmp.write_text("half written")
     print("ready", flush=True)
@@ -351,7 +351,8 @@ with atomic_path(sys.argv[1]) as tmp:
 def test_killed_atomic_writes_leave_temps_the_next_write_removes(tmp_path):
     """kill -9 inside an atomic write (as a killed ``--apply``): its ``.corrections.json.<pid>-<tag>.tmp``
     stays; the next save of the same file removes it. A live writer's temp file is never removed."""
-    from evpose.core.data.fileio import atomic_write_text, clean_stale_temps
+    from evpose.core.data.atomic import atomic_write_text
+    from evpose.core.data.temp_files import clean_stale_temps
 
     target = tmp_path / "corrections.json"
     atomic_write_text(target, "v1")
