@@ -1,4 +1,4 @@
-"""How wrong is a pose interpolated across a gap? The measurement behind ``evpose.core.data.trajectory.MAX_GAP_STEPS``.
+"""How wrong is a pose interpolated across a gap? The measurement behind ``evpose.core.data.trajectory_holes.MAX_GAP_STEPS``.
 
 Usage::
 

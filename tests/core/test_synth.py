@@ -4,10 +4,11 @@ import json
 import numpy as np
 import pytest
 
-from evpose.core.data.events import Cancelled, EventStore
+from evpose.core.data.event_store import EventStore
+from evpose.core.data.events import Cancelled
 from evpose.core.data.geometry import pose_error, rotation_angle
 from evpose.core.data.scene import Scene
-from evpose.core.data.trajectory import ClockModel
+from evpose.core.data.clock import ClockModel
 from evpose.core.label.annotate import Annotator, Request, time_windows
 from evpose.core.sim.synth import (
     NOISE_STEP_US,

@@ -3,7 +3,8 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from evpose.core.data.geometry import rotation_angle
-from evpose.core.data.trajectory import ClockModel, Trajectory, TrajectoryError
+from evpose.core.data.clock import ClockModel
+from evpose.core.data.trajectory import Trajectory, TrajectoryError
 
 
 def make_traj(n=20, seed=0, t0=0, dt=10_000):
