@@ -333,7 +333,7 @@ class AlignController(QtCore.QObject):
 
     # ------------------------------------------------------------------ scores over the sequence
     def score_all(self) -> Job | None:
-        from evpose.core.align.score import score_windows
+        from evpose.core.align.score_table import score_windows
 
         session = self.window.session
         if session is None:

@@ -494,14 +494,14 @@ def bench_unreliable():
 
 # ---------------------------------------------------------------------------- 4. score
 def bench_score(folders):
-    from evpose.core.align import score
+    from evpose.core.align.score_table import score_windows
 
     rows = []
     for folder in folders:
         scene, gt = open_with_truth(folder)
         truth = {n: np.asarray(gt["objects"][n]["T_base_obj"]) for n in scene.object_names}
-        a = score.score_windows(scene, poses=truth)
-        b = score.score_windows(scene)
+        a = score_windows(scene, poses=truth)
+        b = score_windows(scene)
         for n in scene.object_names:
             res = []
             for key in ("score", "distance_px", "inside_fraction"):

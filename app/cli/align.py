@@ -238,7 +238,7 @@ def cmd_refine(args) -> int:
 # ---------------------------------------------------------------------------- score
 def cmd_score(args) -> int:
     check_score_args(args)
-    from evpose.core.align.score import score_windows
+    from evpose.core.align.score_table import score_windows
 
     scene = _open(args.scene)
     try:

@@ -516,7 +516,7 @@ def _evaluate(setup: _Setup, T_bo_list, k: int | None, sigma: float, beta: float
 
 
 def _mean_score(scene, windows, name, poses=None, clock=None):
-    from evpose.core.align.score import score_windows
+    from evpose.core.align.score_table import score_windows
 
     try:
         tab = score_windows(scene, windows, [name], poses=poses, clock=clock)

@@ -12,7 +12,7 @@ from contextlib import redirect_stdout
 import numpy as np
 import pytest
 
-from evpose.core.align import score
+from evpose.core.align import score, score_table
 from evpose.core.data.events import Cancelled, EventArray
 from evpose.core.data.scene import Scene
 from evpose.core.sim.synth import load_ground_truth
@@ -87,8 +87,8 @@ def tiny(tiny_scene_dir):
 def test_every_window_true_pose_scores_higher(tiny):
     scene, truth = tiny
     calls = []
-    wrong = score.score_windows(scene, progress=lambda f, m: calls.append(f))
-    right = score.score_windows(scene, poses=truth)
+    wrong = score_table.score_windows(scene, progress=lambda f, m: calls.append(f))
+    right = score_table.score_windows(scene, poses=truth)
     assert len(wrong) == len(right) == 80          # 0.8 s in 10 ms windows
     assert wrong.runtime_s < 20 and right.runtime_s < 20
     assert calls and calls[-1] == pytest.approx(1.0)
@@ -101,7 +101,7 @@ def test_every_window_true_pose_scores_higher(tiny):
         assert (s_r.data[both] > s_w.data[both]).mean() > 0.7, n
         # hidden data is NaN, visible data finite
         assert np.all(np.isnan(s_r.data[s_r.mask])) and np.all(np.isfinite(s_r.data[~s_r.mask]))
-        w = score.worst_window(right, n)
+        w = score_table.worst_window(right, n)
         assert w is not None and right.valid[n][w] and right.score[n][w] == s_r.min()
         assert np.array_equal(right.n_events_near[n] > 0, right.n_events_near[n] > 0)
     doc = right.to_json()
@@ -116,14 +116,14 @@ def test_empty_zero_length_and_outside_windows(tiny):
             (t0 + 400_000, t0 + 390_000),            # reversed
             (t1 + 10_000_000, t1 + 10_010_000),      # far outside the trajectory
             (t0 + 400_000, t0 + 410_000)]            # a normal window
-    tab = score.score_windows(scene, wins, poses=truth)
+    tab = score_table.score_windows(scene, wins, poses=truth)
     for n in scene.object_names:
         assert tab.valid[n][:3].tolist() == [False, False, False]
         assert tab.reasons[n][2].startswith("label time outside the trajectory: pose time after its last pose")
         assert "events" in tab.reasons[n][0]
         assert tab.n_events_near[n][:3].tolist() == [0, 0, 0]
     assert any(tab.valid[n][3] for n in scene.object_names)
-    assert len(score.score_windows(scene, [])) == 0
+    assert len(score_table.score_windows(scene, [])) == 0
 
 
 def test_object_out_of_view_is_masked_not_zero(tiny):
@@ -131,10 +131,10 @@ def test_object_out_of_view_is_masked_not_zero(tiny):
     away = {n: T.copy() for n, T in truth.items()}
     for T in away.values():
         T[:3, 3] += [0.0, 0.0, 50.0]     # 50 m above the table: behind / outside every view
-    tab = score.score_windows(scene, scene_windows(scene)[:20], poses=away)
+    tab = score_table.score_windows(scene, scene_windows(scene)[:20], poses=away)
     for n in scene.object_names:
         assert tab.score[n].count() == 0
-        assert tab.mean_score(n) is None and score.worst_window(tab, n) is None
+        assert tab.mean_score(n) is None and score_table.worst_window(tab, n) is None
         assert np.ma.is_masked(tab.score[n].mean())
     doc = tab.to_json()
     assert all(v["score"] is None for w in doc["windows"] for v in w["objects"].values())
@@ -149,7 +149,7 @@ def scene_windows(scene):
 def test_cancel(tiny):
     scene, _ = tiny
     with pytest.raises(Cancelled):
-        score.score_windows(scene, cancel=lambda: True)
+        score_table.score_windows(scene, cancel=lambda: True)
 
 
 def test_cli_score_json(tiny_scene_dir):
