@@ -12,7 +12,7 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
 from evpose.app.workers import Job, progress_dialog
-from evpose.core.align.sync import SLOW_STD_NOTE_US
+from evpose.core.align.sync_result import SLOW_STD_NOTE_US
 
 
 def _fmt_ms(us) -> str:
@@ -245,14 +245,14 @@ class AlignController(QtCore.QObject):
 
     # ------------------------------------------------------------------ clock sync
     def auto_sync(self) -> Job | None:
-        from evpose.core.align.sync import sync_scene
+        from evpose.core.align.estimate import sync_scene
 
         return self._run("Automatic clock sync",
                          lambda scene, progress, cancel: sync_scene(scene, progress=progress, cancel=cancel),
                          self._sync_done)
 
     def _sync_done(self, session, result) -> None:
-        from evpose.core.align.sync import apply_sync
+        from evpose.core.align.apply import apply_sync
 
         self.last_sync = result
         clock = session.scene.clock

@@ -17,7 +17,7 @@ Sections
 1. **Sync** on rendered 8 s scenes (87x65 DAVIS346 optics, ~25-75 k events/s) at 0.1 / 0.5 /
    1.0 m/s, 3 seeds (1 in quick), offsets from the published E-POSE table (``time_shifts.csv``):
    our method (Poisson maximum likelihood refinement, the default; NCC refinement; parabolic
-   peak only; weighted log fit; speed proxy; 1-10 ms bins) against the E-POSE minima-matching
+   peak only; speed proxy; 1-10 ms bins) against the E-POSE minima-matching
    baseline. Then at 0.1 m/s on 24 s and 40 s scenes (accuracy against sequence length) and on
    8 s scenes at the full 346x260 resolution; and how well the reported standard error
    (``SyncResult.offset_std_us``) describes the actual errors. Then the second stage on all of
@@ -232,23 +232,24 @@ def _event_times(scene) -> np.ndarray:
 
 
 def rebinned_sync(scene, phase_us, bin_us=1000, **kw):
-    """:func:`evpose.core.align.sync.estimate_clock` on the scene's events binned from ``phase_us`` after the
-    first event (``EventStore.rate`` bins start at the first event)."""
-    from evpose.core.align import sync
+    """:func:`evpose.core.align.estimate.estimate_clock` on the scene's events binned from ``phase_us`` after
+    the first event (``EventStore.rate`` bins start at the first event)."""
+    from evpose.core.align.estimate import estimate_clock
+    from evpose.core.align.scene_proxy import scene_motion_proxy
 
     t = _event_times(scene)
     edges = np.arange(t[0] + phase_us - bin_us, t[-1] + bin_us, bin_us, dtype=np.int64)
     counts, _ = np.histogram(t, bins=edges)
-    return sync.estimate_clock(edges[:-1], counts, bin_us, sync.scene_motion_proxy(scene), scene.clock, **kw)
+    return estimate_clock(edges[:-1], counts, bin_us, scene_motion_proxy(scene), scene.clock, **kw)
 
 
 def bench_sync(scenes: dict, speeds, seeds):
-    from evpose.core.align import sync
+    from evpose.core.align.estimate import sync_scene
+    from evpose.core.align.minima_baseline import sync_minima_baseline
 
     variants = [("ours 1 ms (default: Poisson ML)", dict(bin_us=1000)),
                 ("ours 1 ms NCC refine", dict(bin_us=1000, refine="ncc")),
                 ("ours 1 ms parabolic only", dict(bin_us=1000, refine=False)),
-                ("ours 1 ms weighted log fit", dict(bin_us=1000, refine="wls")),
                 ("ours 1 ms ML, speed proxy", dict(bin_us=1000, kind="speed")),
                 ("ours 2 ms ML", dict(bin_us=2000)),
                 ("ours 5 ms ML", dict(bin_us=5000)),
@@ -275,7 +276,7 @@ def bench_sync(scenes: dict, speeds, seeds):
                                                                   rt))
                     continue
                 t = time.perf_counter()
-                r = sync.sync_minima_baseline(scene) if kw is None else sync.sync_scene(scene, **kw)
+                r = sync_minima_baseline(scene) if kw is None else sync_scene(scene, **kw)
                 rt = time.perf_counter() - t
                 err = None if r.offset_us is None else r.offset_us - truth
                 results.setdefault((name, sp), []).append((err, rt))
@@ -304,7 +305,7 @@ def bench_sync(scenes: dict, speeds, seeds):
 def bench_slow(scenes: dict, names: list):
     """Offset error at 0.1 m/s against sequence length: the estimate rests on where motion
     starts and stops, and a slow 8 s sequence holds only ~3 gradual moves."""
-    from evpose.core.align import sync
+    from evpose.core.align.minima_baseline import sync_minima_baseline
 
     by_len: dict = {}
     for n in names:
@@ -322,7 +323,7 @@ def bench_slow(scenes: dict, names: list):
                 if not kw and r.offset_us is not None:
                     _STD_RUNS.append((f"{dur}, 0.1 m/s", r.offset_us - truth, r.offset_std_us))
         t = time.perf_counter()
-        r = sync.sync_minima_baseline(scene)
+        r = sync_minima_baseline(scene)
         by_len.setdefault(("E-POSE minima baseline", dur), []).append(
             (None if r.offset_us is None else r.offset_us - truth, time.perf_counter() - t))
         scene.close()
@@ -426,7 +427,7 @@ def bench_sync_edges(scenes: dict, names: list):
 
 
 def bench_skew(n_seeds, rendered_skew):
-    from evpose.core.align import sync
+    from evpose.core.align.estimate import sync_scene
 
     rows, pts = [], []
     cases = []
@@ -438,8 +439,7 @@ def bench_skew(n_seeds, rendered_skew):
     variants = [("ML (default), 4 segments", dict(n_segments=4)), ("ML (default), 8 segments", dict(n_segments=8)),
                 ("ML (default), 16 segments", dict(n_segments=16)),
                 ("NCC refine, 8 segments", dict(refine="ncc")), ("NCC refine, 16 segments", dict(refine="ncc", n_segments=16)),
-                ("Theil-Sen only, 8 segments", dict(refine=False)),
-                ("weighted log fit, 8 segments", dict(refine="wls"))]
+                ("Theil-Sen only, 8 segments", dict(refine=False))]
     import json
 
     for name, kw in variants:
@@ -448,7 +448,7 @@ def bench_skew(n_seeds, rendered_skew):
             truth = json.loads((folder / "truth.json").read_text())
             scene = Scene.open(folder)
             t = time.perf_counter()
-            r = sync.sync_scene(scene, kind="speed", **kw)
+            r = sync_scene(scene, kind="speed", **kw)
             rt.append(time.perf_counter() - t)
             scene.close()
             se.append(None if r.skew_ppm is None else r.skew_ppm - truth["skew_ppm"])
@@ -465,7 +465,7 @@ def bench_skew(n_seeds, rendered_skew):
         gt = load_ground_truth(folder)["clock"]
         scene = Scene.open(folder)
         for name, kw in (("ML (default)", {}), ("NCC refine", dict(refine="ncc"))):
-            r = sync.sync_scene(scene, **kw)
+            r = sync_scene(scene, **kw)
             off_txt = "n/a" if r.offset_us is None else f"{(r.offset_us - gt['offset_us']) / 1e3:+.3f}"
             skew_txt = "not estimated" if r.skew_ppm is None else f"{r.skew_ppm - gt['skew_ppm']:+.1f}"
             rows.append([folder.name, f"{gt['skew_ppm']:+.0f}", f"{gt['offset_us'] / 1e3:+.1f}", name, skew_txt, off_txt,
@@ -478,14 +478,15 @@ def bench_skew(n_seeds, rendered_skew):
 
 
 def bench_unreliable():
-    from evpose.core.align import sync
+    from evpose.core.align.estimate import sync_scene
+    from evpose.core.align.minima_baseline import sync_minima_baseline
 
     rows = []
     for name, kw in (("static camera", dict(static=True)), ("periodic motion (period 360 ms)", dict(periodic=True))):
         folder = rate_level_scene(DATA / f"rate_{name.split()[0]}", 6.0, -40_000, 0.0, 7, **kw)
         scene = Scene.open(folder)
-        r = sync.sync_scene(scene)
-        b = sync.sync_minima_baseline(scene)
+        r = sync_scene(scene)
+        b = sync_minima_baseline(scene)
         scene.close()
         rows.append([name, str(r.reliable), r.reason[:70], str(b.reliable) + ("" if b.reliable else f" ({b.reason})"),
                      fmt(r.runtime_s, 3)])

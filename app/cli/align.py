@@ -113,7 +113,9 @@ def _progress(args):
 # ---------------------------------------------------------------------------- sync
 def cmd_sync(args) -> int:
     check_sync_args(args)
-    from evpose.core.align.sync import apply_sync, clock_correction, sync_minima_baseline, sync_scene
+    from evpose.core.align.apply import apply_sync, clock_correction
+    from evpose.core.align.estimate import sync_scene
+    from evpose.core.align.minima_baseline import sync_minima_baseline
     from evpose.core.document.history import History
 
     scene = _open(args.scene)

@@ -393,9 +393,9 @@ class _Contours:
 
 # ---------------------------------------------------------------------------- window choice
 def _window_speeds_px_s(scene, centres_us: np.ndarray, window_us: int, clock, proxy=None):
-    """Mean image speed (px/s, :func:`evpose.core.align.sync.scene_motion_proxy`) over windows of
+    """Mean image speed (px/s, :func:`evpose.core.align.scene_proxy.scene_motion_proxy`) over windows of
     ``window_us`` centred on ``centres_us``; returns ``(speed, valid)``."""
-    from evpose.core.align.sync import scene_motion_proxy
+    from evpose.core.align.scene_proxy import scene_motion_proxy
 
     proxy = proxy or scene_motion_proxy(scene)
     c = np.asarray(centres_us, np.int64)
@@ -410,7 +410,7 @@ def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=No
     (image speed above ``min_px_s``, default :data:`MIN_WINDOW_PX_S` at half DAVIS346 resolution
     scaled by ``fx / 146``, lowered to a quarter of the sequence's fast speed on slow sequences,
     and, when ``objects`` are given, at least one of them in front of the camera). ``proxy``:
-    the scene's :func:`evpose.core.align.sync.scene_motion_proxy` when the caller has it.
+    the scene's :func:`evpose.core.align.scene_proxy.scene_motion_proxy` when the caller has it.
     Returns a list of ``(t0_us, t1_us)``."""
     ev = scene.events
     if ev.t_first_us is None or ev.t_last_us - ev.t_first_us < window_us:
@@ -805,7 +805,7 @@ MAX_OFFSET_WINDOW_US = 50_000
 def offset_window_us(proxy, window_us: int) -> int:
     """Window length for :func:`refine_offset`: ``window_us``, lengthened on slow sequences so the
     image moves :data:`OFFSET_WINDOW_PX` at the fast (95th percentile) speed of the scene's
-    motion ``proxy`` (:func:`evpose.core.align.sync.scene_motion_proxy`)."""
+    motion ``proxy`` (:func:`evpose.core.align.scene_proxy.scene_motion_proxy`)."""
     v = proxy.value[proxy.value > 0]
     if len(v) == 0:
         return int(window_us)
@@ -838,7 +838,7 @@ def refine_offset(scene, *, windows=None, params: RefineParams = RefineParams(),
     Returns the total offset in ``offset_us`` (at the clock's reference time), its standard
     error in ``offset_std_us`` and the skew in ``skew_ppm``.
     """
-    from evpose.core.align.sync import scene_motion_proxy
+    from evpose.core.align.scene_proxy import scene_motion_proxy
     from evpose.core.data.trajectory import ClockModel
 
     t_start = time.perf_counter()
@@ -964,7 +964,7 @@ def refine_offset_from_sync(scene, sync_result, *, params: RefineParams = Refine
                             cancel=None) -> RefineResult:
     """Second stage of the clock sync: the offset (and skew) from event/edge alignment
     (:func:`refine_offset`), started at a reliable event-rate estimate
-    (:func:`evpose.core.align.sync.sync_scene`; its clock, with the prior skew when it estimated none) and
+    (:func:`evpose.core.align.estimate.sync_scene`; its clock, with the prior skew when it estimated none) and
     searched within :func:`sync_edge_half_range_us`.
 
     The rate pins the offset only loosely on slow sequences (a slow move starts and stops

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from evpose.core.align.sync import SLOW_STD_NOTE_US, SyncResult
+from evpose.core.align.sync_result import SLOW_STD_NOTE_US, SyncResult
 
 
 def _result(std, reliable=True):

@@ -224,7 +224,7 @@ def test_choose_windows(tiny):
     # ... but an explicit threshold is kept
     assert refine.choose_windows(scene, 10, 10_000, ["box"], min_px_s=1e6) == []
     # the offset refinement lengthens windows on slow sequences only
-    from evpose.core.align.sync import scene_motion_proxy
+    from evpose.core.align.scene_proxy import scene_motion_proxy
 
     proxy = scene_motion_proxy(scene)
     assert refine.offset_window_us(proxy, 10_000) == 10_000

@@ -1,5 +1,5 @@
-"""Clock synchronisation (evpose.core.align.sync): accuracy on rate-level and rendered synthetic scenes, the
-E-POSE minima baseline, reliability decisions and the stiff cases of DESIGN section 7."""
+"""Clock synchronisation (evpose.core.align.estimate and its stages): accuracy on rate-level and rendered
+synthetic scenes, the E-POSE minima baseline, reliability decisions and the stiff cases of DESIGN section 7."""
 from __future__ import annotations
 
 import argparse
@@ -14,7 +14,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evpose.core.align import sync
+from evpose.core.align.apply import apply_sync, clock_correction
+from evpose.core.align.correlation import _masked_ncc
+from evpose.core.align.estimate import estimate_clock, sync_scene
+from evpose.core.align.likelihood import joint_skew, likelihood_std_us
+from evpose.core.align.minima_baseline import sync_minima_baseline
+from evpose.core.align.proxy import MotionProxy, motion_proxy
+from evpose.core.align.sync_result import SLOW_STD_NOTE_US, SyncResult
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import EventArray, EventWriter, write_events_h5
 from evpose.core.data.scene import Scene, SceneManifest
@@ -129,7 +135,7 @@ def test_offset_and_skew_on_ideal_rate(rate20):
     off_err, skew_err = [], []
     for folder, truth in rate20:
         with _Open(folder) as scene:
-            res = sync.sync_scene(scene, kind="speed")
+            res = sync_scene(scene, kind="speed")
         assert res.reliable, res.reason
         assert res.skew_ppm is not None, res.notes
         off_err.append(abs(res.offset_us - truth.offset_us))
@@ -156,7 +162,7 @@ def test_offset_std_is_calibrated_and_shrinks_with_the_event_count(tmp_path):
             folder, truth = make_rate_scene(tmp_path / f"g{gain}_{seed}", 5.0, -40_000 + 9_000 * seed, 0.0,
                                             seed=100 + seed, gain=gain)
             with _Open(folder) as scene:
-                res = sync.sync_scene(scene, kind="speed")
+                res = sync_scene(scene, kind="speed")
             assert res.reliable, res.reason
             assert res.offset_std_us is not None and 0 < res.offset_std_us < math.inf
             sig.setdefault(gain, []).append(res.offset_std_us)
@@ -176,10 +182,10 @@ def test_loose_offset_is_flagged(tmp_path):
     says so; the NCC-only path computes no standard error."""
     folder, truth = make_rate_scene(tmp_path / "sparse", 5.0, 12_000, 0.0, seed=7, gain=0.05)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene, kind="speed")
-        ncc = sync.sync_scene(scene, kind="speed", refine="ncc")
+        res = sync_scene(scene, kind="speed")
+        ncc = sync_scene(scene, kind="speed", refine="ncc")
     assert res.reliable, res.reason
-    assert res.offset_std_us > sync.SLOW_STD_NOTE_US
+    assert res.offset_std_us > SLOW_STD_NOTE_US
     assert any("pins the offset only to" in n for n in res.notes), res.notes
     assert ncc.offset_std_us is None and ncc.to_json()["offset_std_us"] is None
 
@@ -196,12 +202,12 @@ def test_joint_skew_accepts_only_a_significant_consistent_skew():
             return -0.5 * ((o - self.o) / self.sd_o) ** 2 - 0.5 * ((s - self.s) / self.sd_s) ** 2
 
     line = (-140.0, -14_500.0, 150.0)                     # slope ppm, offset us, half CI ppm
-    o, s, lr = sync._joint_skew(Quadratic(-15_000.0, -150.0), -16_000.0, 0.0, line, 1000, 1500.0)
+    o, s, lr = joint_skew(Quadratic(-15_000.0, -150.0), -16_000.0, 0.0, line, 1000, 1500.0)
     assert o == pytest.approx(-15_000, abs=5) and s == pytest.approx(-150, abs=0.5) and lr > 50
     # weak: the prior skew is only ~1.5 sigma worse (LR ~2)
-    assert sync._joint_skew(Quadratic(-15_000.0, -30.0), -15_000.0, 0.0, line, 1000, 1500.0) is None
+    assert joint_skew(Quadratic(-15_000.0, -30.0), -15_000.0, 0.0, line, 1000, 1500.0) is None
     # the joint optimum far outside the line's interval: not the skew the segments saw
-    assert sync._joint_skew(Quadratic(-15_000.0, 400.0), -15_000.0, 0.0, line, 1000, 1500.0) is None
+    assert joint_skew(Quadratic(-15_000.0, 400.0), -15_000.0, 0.0, line, 1000, 1500.0) is None
 
 
 def test_likelihood_std_follows_the_envelope_not_the_ripple():
@@ -210,11 +216,11 @@ def test_likelihood_std_follows_the_envelope_not_the_ripple():
     x = np.arange(-30_000, 30_001, 250.0)
     env = -0.5 * (x / 3000.0) ** 2
     ripple = 1.5 * np.cos(2 * np.pi * x / 4000.0)
-    std = sync._likelihood_std_us(x, env + ripple, 0.0, 1000)
+    std = likelihood_std_us(x, env + ripple, 0.0, 1000)
     assert 2400 < std < 3600, std
-    assert sync._likelihood_std_us(x, env, 0.0, 1000) == pytest.approx(3000, rel=1e-6)
-    assert sync._likelihood_std_us(x, np.zeros_like(x), 0.0, 1000) == math.inf
-    assert sync._likelihood_std_us(x, +1e-9 * x**2, 0.0, 1000) == math.inf
+    assert likelihood_std_us(x, env, 0.0, 1000) == pytest.approx(3000, rel=1e-6)
+    assert likelihood_std_us(x, np.zeros_like(x), 0.0, 1000) == math.inf
+    assert likelihood_std_us(x, +1e-9 * x**2, 0.0, 1000) == math.inf
 
 
 class _Open:
@@ -234,7 +240,7 @@ class _Open:
 def test_extreme_skew(tmp_path, skew):
     folder, truth = make_rate_scene(tmp_path / "s", 20.0, 25_000, skew, seed=5, gain=25.0)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene, kind="speed")
+        res = sync_scene(scene, kind="speed")
     assert res.reliable, res.reason
     assert abs(res.skew_ppm - skew) < 25          # median over seeds ~6 ppm (bench/accuracy.py)
     assert abs(res.offset_us - truth.offset_us) < 400
@@ -243,8 +249,8 @@ def test_extreme_skew(tmp_path, skew):
 def test_no_skew_estimate_on_short_sequences(tmp_path):
     folder, truth = make_rate_scene(tmp_path / "s", 3.0, 41_000, 0.0, seed=2)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene, kind="speed")
-        corr = sync.clock_correction(scene, res)
+        res = sync_scene(scene, kind="speed")
+        corr = clock_correction(scene, res)
     assert res.reliable and res.skew_ppm is None
     assert abs(res.offset_us - truth.offset_us) < 500
     assert corr == (res.offset_us, 0.0)
@@ -255,14 +261,14 @@ def test_offset_at_the_edge_of_the_search_range(tmp_path):
     # 480 ms away from the prior: inside the default ±500 ms, found
     folder, truth = make_rate_scene(tmp_path / "in", 4.0, 480_000, 0.0, seed=3, margin_s=1.5)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene, kind="speed")
+        res = sync_scene(scene, kind="speed")
     assert res.reliable, res.reason
     assert abs(res.offset_us - truth.offset_us) < max(500, 3 * res.offset_std_us)
     # 560 ms away: outside the range -> no guess, the reason says so
     folder, truth = make_rate_scene(tmp_path / "out", 4.0, 560_000, 0.0, seed=3, margin_s=1.5)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene, kind="speed")
-        wide = sync.sync_scene(scene, kind="speed", range_ms=700)
+        res = sync_scene(scene, kind="speed")
+        wide = sync_scene(scene, kind="speed", range_ms=700)
     assert not res.reliable and res.offset_us is None
     assert "range" in res.reason
     assert wide.reliable and abs(wide.offset_us - truth.offset_us) < max(500, 3 * wide.offset_std_us)
@@ -276,8 +282,8 @@ def test_static_camera(tmp_path):
     ev = rate_events(traj, ClockModel(0, 0, T0_POSE + 1_000_000), T0_POSE + 1_000_000, T0_POSE + 5_000_000, rng)
     folder = write_scene(tmp_path / "static", traj, ev)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene)
-        base = sync.sync_minima_baseline(scene)
+        res = sync_scene(scene)
+        base = sync_minima_baseline(scene)
     assert not res.reliable and res.offset_us is None and res.skew_ppm is None
     assert "static" in res.reason
     assert res.confidence == 0.0
@@ -294,7 +300,7 @@ def test_periodic_motion_is_ambiguous(tmp_path):
     ev = rate_events(traj, clock, clock.t_ref_us, clock.t_ref_us + 5_000_000, rng)
     folder = write_scene(tmp_path / "periodic", traj, ev)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene)
+        res = sync_scene(scene)
     assert not res.reliable and res.offset_us is None
     assert "ambiguous" in res.reason or "periodic" in res.reason
     assert len(res.correlation) > 0   # the curve is still returned for display
@@ -317,8 +323,8 @@ def test_empty_single_event_constant_rate_and_short(tmp_path):
     for name, ev in cases.items():
         folder = write_scene(tmp_path / name, traj, ev)
         with _Open(folder) as scene:
-            res = sync.sync_scene(scene)
-            base = sync.sync_minima_baseline(scene)
+            res = sync_scene(scene)
+            base = sync_minima_baseline(scene)
         assert not res.reliable and res.offset_us is None, name
         assert expect[name] in res.reason, (name, res.reason)
         assert not base.reliable, name
@@ -326,11 +332,11 @@ def test_empty_single_event_constant_rate_and_short(tmp_path):
 
 
 def test_estimate_clock_rejects_bad_arguments():
-    proxy = sync.MotionProxy(0, np.array([0.0, 1e6]), np.array([1.0]))
+    proxy = MotionProxy(0, np.array([0.0, 1e6]), np.array([1.0]))
     with pytest.raises(ValueError):
-        sync.estimate_clock([0, 1000], [1], 1000, proxy, ClockModel())
+        estimate_clock([0, 1000], [1], 1000, proxy, ClockModel())
     with pytest.raises(ValueError):
-        sync.estimate_clock([0], [1], 0, proxy, ClockModel())
+        estimate_clock([0], [1], 0, proxy, ClockModel())
 
 
 def test_180_degree_turn_between_samples():
@@ -338,15 +344,15 @@ def test_180_degree_turn_between_samples():
     q = Rotation.from_euler("z", np.array([0, 0, 180, 0, 90.0])[:, None], degrees=True).as_quat()
     traj = Trajectory(t, np.zeros((5, 3)), q)
     rays = np.array([[0.0, 0.0], [0.3, -0.2]])
-    raw = sync.motion_proxy(traj, FX, rays_xy=rays, smooth=False)
+    raw = motion_proxy(traj, FX, rays_xy=rays, smooth=False)
     assert np.all(np.isfinite(raw.value))
     w = np.pi / 4e-3   # 180 degrees in 4 ms: the relative rotation's angle is pi, never NaN
     assert 0 < raw.value[1] < 2 * FX * w
-    speed = sync.motion_proxy(traj, FX, kind="speed", smooth=False)
+    speed = motion_proxy(traj, FX, kind="speed", smooth=False)
     assert speed.value[1] == pytest.approx(FX * w)
     # the smoothed curve (default) runs linearly through the interval means at the midpoints:
     # on interval 1, between its neighbours' means, and within 125 us of slope of its own mean
-    proxy = sync.motion_proxy(traj, FX, rays_xy=rays)
+    proxy = motion_proxy(traj, FX, rays_xy=rays)
     assert np.all(np.isfinite(proxy.value)) and len(proxy.value) == 4 * 16
     sub = proxy.value[16:32]
     assert raw.value[:3].min() - 1e-9 <= sub.min() and sub.max() <= raw.value[:3].max() + 1e-9
@@ -361,7 +367,7 @@ def test_masked_ncc_matches_direct_computation():
     b = rng.normal(size=70)
     ma = rng.random(50) > 0.1
     mb = rng.random(70) > 0.2
-    ncc, n = sync._masked_ncc(a, ma, b, mb, 5)
+    ncc, n = _masked_ncc(a, ma, b, mb, 5)
     for j in range(21):
         m = ma & mb[j:j + 50]
         x, y = a[m], b[j:j + 50][m]
@@ -395,10 +401,10 @@ def test_rendered_scene_offset_and_baseline(rendered):
 
     true_off = load_ground_truth(rendered)["clock"]["offset_us"]
     with _Open(rendered) as scene:
-        res = sync.sync_scene(scene)
-        base = sync.sync_minima_baseline(scene)
+        res = sync_scene(scene)
+        base = sync_minima_baseline(scene)
     assert res.reliable, res.reason
-    # the simulated event rate lags the image motion by ~1 ms (see evpose.core.align.sync's docstring)
+    # the simulated event rate lags the image motion by ~1 ms (see docs/sync.md, Accuracy)
     assert abs(res.offset_us - true_off) < 3000
     assert res.skew_ppm is None        # 5 s: too short for a skew
     assert base.method == "minima-baseline"
@@ -410,15 +416,15 @@ def test_apply_through_history_and_undo(rendered, tmp_path):
     folder = tmp_path / "scene"
     shutil.copytree(rendered, folder)
     with _Open(folder) as scene:
-        res = sync.sync_scene(scene)
+        res = sync_scene(scene)
         h = History(scene.corrections)
-        assert sync.apply_sync(h, scene, res)
+        assert apply_sync(h, scene, res)
         assert scene.clock.offset_us == res.offset_us
         assert len(h) == 1 and h.undo_text == "clock sync"
         h.undo()
         assert scene.clock.offset_us == scene.manifest.clock_offset_us
-        bad = sync.SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
-        assert not sync.apply_sync(h, scene, bad) and len(h) == 1 and h.index == 0
+        bad = SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
+        assert not apply_sync(h, scene, bad) and len(h) == 1 and h.index == 0
 
 
 def _cli(argv) -> tuple[int, str]:
@@ -457,9 +463,9 @@ def test_rate_then_edges_pins_the_offset(rendered):
 
     true_off = load_ground_truth(rendered)["clock"]["offset_us"]
     with _Open(rendered) as scene:
-        res = sync.sync_scene(scene)
+        res = sync_scene(scene)
         edges = refine.refine_offset_from_sync(scene, res)
-        unreliable = sync.SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
+        unreliable = SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
         kept = refine.refine_offset_from_sync(scene, unreliable)
     assert res.reliable and edges.accepted, edges.reason
     err_rate, err_edges = res.offset_us - true_off, edges.offset_us - true_off

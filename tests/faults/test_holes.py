@@ -212,7 +212,7 @@ def test_an_11_day_gap_is_a_hole_and_nothing_hangs(tiny_scene_dir, tmp_path):
 # ------------------------------------------------------------------------------------------------ sync, refine
 def test_sync_and_refine_use_no_window_and_no_bin_in_a_hole(holed):
     from evpose.core.align.refine import _Window, choose_windows
-    from evpose.core.align.sync import scene_motion_proxy
+    from evpose.core.align.scene_proxy import scene_motion_proxy
 
     holed_dir, (a, b) = holed
     s = Scene.open(holed_dir)
