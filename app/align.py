@@ -276,9 +276,10 @@ class AlignController(QtCore.QObject):
     def refine_clock(self) -> Job | None:
         """Offset (and skew) from event/edge alignment. Right after an accepted automatic sync
         (the clock in effect is its estimate) it searches within 3 of that estimate's standard
-        errors (:func:`evpose.core.align.refine.refine_offset_from_sync`); otherwise ±3 ms around the clock in
+        errors (:func:`evpose.core.align.sync_edges.refine_offset_from_sync`); otherwise ±3 ms around the clock in
         effect."""
-        from evpose.core.align.refine import refine_offset, refine_offset_from_sync
+        from evpose.core.align.clock_refine import refine_offset
+        from evpose.core.align.sync_edges import refine_offset_from_sync
 
         session = self.window.session
         if session is None:
@@ -299,7 +300,7 @@ class AlignController(QtCore.QObject):
         return self._run("Clock from edges", fn, self._clock_done)
 
     def _clock_done(self, session, result) -> None:
-        from evpose.core.align.refine import apply_offset_result
+        from evpose.core.align.apply import apply_offset_result
 
         self.last_clock_refine = result
         clock = session.scene.clock
@@ -312,7 +313,7 @@ class AlignController(QtCore.QObject):
 
     # ------------------------------------------------------------------ pose refinement
     def refine(self, name: str) -> Job | None:
-        from evpose.core.align.refine import refine_object
+        from evpose.core.align.pose_refine import refine_object
 
         session = self.window.session
         if session is None or name not in session.object_names:

@@ -22,7 +22,7 @@ Sections
    8 s scenes at the full 346x260 resolution; and how well the reported standard error
    (``SyncResult.offset_std_us``) describes the actual errors. Then the second stage on all of
    these scenes: the offset and skew from event/edge alignment
-   (:func:`evpose.core.align.refine.refine_offset_from_sync`, ``evpose sync --edges``) with 12 and 24 windows.
+   (:func:`evpose.core.align.sync_edges.refine_offset_from_sync`, ``evpose sync --edges``) with 12 and 24 windows.
 2. **Skew** on 20 s sequences: rate-level scenes (events drawn with a rate proportional to the
    camera's image speed, ~330 k ev/s) with skews up to ±1000 ppm at 4 / 8 / 16 segments, and
    rendered 20 s scenes with -150 / +200 ppm.
@@ -33,7 +33,7 @@ Sections
 5. **Refinement** of 5 mm / 3 degree pose errors on half-resolution scenes (173x130, built-in
    boxes and, when ``../shared/assets/epose/models`` exists, the sugar / cracker box meshes),
    against the number of windows and per iteration, with run times; and the clock offset from
-   edges (:func:`evpose.core.align.refine.refine_offset`).
+   edges (:func:`evpose.core.align.clock_refine.refine_offset`).
 """
 from __future__ import annotations
 
@@ -378,9 +378,10 @@ def _edge_group(name: str) -> str:
 
 def bench_sync_edges(scenes: dict, names: list):
     """The second stage: the offset (and skew) from event/edge alignment
-    (:func:`evpose.core.align.refine.refine_offset_from_sync`) started at the rate estimate (one shifted-bin
-    run per scene), with the objects at their true poses (the assumption of that stage)."""
-    from evpose.core.align import refine
+    (:func:`evpose.core.align.sync_edges.refine_offset_from_sync`) started at the rate estimate (one
+    shifted-bin run per scene), with the objects at their true poses (the assumption of that stage)."""
+    from evpose.core.align.refine_result import RefineParams
+    from evpose.core.align.sync_edges import refine_offset_from_sync
 
     res: dict = {}     # (method, group) -> list of (offset err us, |skew err| ppm or None, sigma us, runtime s)
     for n in names:
@@ -395,7 +396,7 @@ def bench_sync_edges(scenes: dict, names: list):
             (None if r.offset_us is None else r.offset_us - truth,
              None if r.skew_ppm is None else abs(r.skew_ppm - true_skew), r.offset_std_us, rt_rate))
         for label, nw in EDGE_VARIANTS:
-            e = refine.refine_offset_from_sync(scene, r, params=refine.RefineParams(n_windows=nw))
+            e = refine_offset_from_sync(scene, r, params=RefineParams(n_windows=nw))
             res.setdefault((label, g), []).append(
                 (e.offset_us - truth if e.accepted else None,
                  abs(e.skew_ppm - true_skew) if e.accepted and e.skew_estimated else None,
@@ -527,7 +528,8 @@ def obj_errors(scene, name, T, gt):
 
 
 def bench_refine(folders, window_counts):
-    from evpose.core.align import refine
+    from evpose.core.align.pose_refine import refine_object
+    from evpose.core.align.refine_result import RefineParams
 
     per_row, traces = {}, []
     for nw in window_counts:
@@ -536,7 +538,7 @@ def bench_refine(folders, window_counts):
             for n in scene.object_names:
                 if scene.manifest.object(n).symmetric:
                     continue
-                r = refine.refine_object(scene, n, params=refine.RefineParams(n_windows=nw), with_scores=False)
+                r = refine_object(scene, n, params=RefineParams(n_windows=nw), with_scores=False)
                 T = r.dT_base @ scene.manifest.object(n).T_base_obj
                 before = obj_errors(scene, n, scene.T_base_obj(n), gt)
                 after = obj_errors(scene, n, T, gt)
@@ -572,13 +574,14 @@ def bench_refine(folders, window_counts):
 
 
 def bench_offset_refine(folders):
-    from evpose.core.align import refine
+    from evpose.core.align.clock_refine import refine_offset
+    from evpose.core.align.refine_result import RefineParams
 
     rows = []
     for folder in folders:
         for poses in (True, False):
             scene, gt = open_with_truth(folder, poses=poses, offset_shift_us=1500)
-            r = refine.refine_offset(scene, params=refine.RefineParams(n_windows=24))
+            r = refine_offset(scene, params=RefineParams(n_windows=24))
             scene.close()
             rows.append([folder.name, "true" if poses else "5 mm / 3 deg off", "+1.50",
                          f"{(r.offset_us - gt['clock']['offset_us']) / 1e3:+.3f}", f"{r.runtime_s:.1f}"])

@@ -129,7 +129,8 @@ def cmd_sync(args) -> int:
             data["baseline"] = sync_minima_baseline(scene, range_ms=args.range_ms).to_json()
         edges = None
         if args.edges and res.reliable:
-            from evpose.core.align.refine import RefineParams, refine_offset_from_sync
+            from evpose.core.align.refine_result import RefineParams
+            from evpose.core.align.sync_edges import refine_offset_from_sync
 
             edges = refine_offset_from_sync(scene, res, params=RefineParams(n_windows=args.windows),
                                             progress=_progress(args))
@@ -139,7 +140,7 @@ def cmd_sync(args) -> int:
         applied = False
         if args.apply:
             if res.reliable:
-                from evpose.core.align.refine import apply_offset_result
+                from evpose.core.align.apply import apply_offset_result
 
                 history = History(scene.corrections)
                 applied = (apply_offset_result(history, scene, edges, "clock sync (rate, then edges)")
@@ -187,7 +188,10 @@ def _edges_line(r, label: str = "edges") -> str:
 # ---------------------------------------------------------------------------- refine
 def cmd_refine(args) -> int:
     check_refine_args(args)
-    from evpose.core.align.refine import RefineParams, apply_offset_result, refine_object, refine_offset
+    from evpose.core.align.apply import apply_offset_result
+    from evpose.core.align.clock_refine import refine_offset
+    from evpose.core.align.pose_refine import refine_object
+    from evpose.core.align.refine_result import RefineParams
     from evpose.core.document.history import History
 
     scene = _open(args.scene)

@@ -6,9 +6,10 @@ as one undo step, for the CLI's ``--apply``.
 """
 from __future__ import annotations
 
+from evpose.core.align.refine_result import RefineResult
 from evpose.core.align.sync_result import SyncResult
 
-__all__ = ["apply_sync", "clock_correction"]
+__all__ = ["apply_offset_result", "apply_sync", "clock_correction"]
 
 
 def clock_correction(scene, result: SyncResult) -> tuple[int, float] | None:
@@ -33,3 +34,14 @@ def apply_sync(history, scene, result: SyncResult, text: str = "clock sync") -> 
         history.set(("skew_ppm",), corr[1])
     return True
 
+
+def apply_offset_result(history, scene, result: RefineResult, text: str = "clock from edges") -> bool:
+    """Store an accepted offset refinement (offset and skew) as clock corrections through
+    ``history``, as one undo step; returns whether applied."""
+    if result.kind != "offset" or not result.accepted or result.offset_us is None:
+        return False
+    skew = scene.clock.skew_ppm if result.skew_ppm is None else float(result.skew_ppm)
+    with history.group(text):
+        history.set(("offset_us",), int(result.offset_us) - int(scene.manifest.clock_offset_us))
+        history.set(("skew_ppm",), skew - float(scene.manifest.clock_skew_ppm))
+    return True

@@ -61,7 +61,7 @@ def test_then_edges_choice(qtbot):
 
 
 def _offset_result(accepted, skew_estimated=False):
-    from evpose.core.align.refine import RefineResult
+    from evpose.core.align.refine_result import RefineResult
 
     return RefineResult("offset", None, offset_us=-57_640 if accepted else -58_000,
                         offset_std_us=85.0 if accepted else None, skew_ppm=12.5 if accepted else None,

@@ -458,15 +458,15 @@ def test_cli_sync_json_apply_baseline(rendered, tmp_path):
 
 # ---------------------------------------------------------------------------- second stage: edges
 def test_rate_then_edges_pins_the_offset(rendered):
-    from evpose.core.align import refine
+    from evpose.core.align import sync_edges
     from evpose.core.sim.synth import load_ground_truth
 
     true_off = load_ground_truth(rendered)["clock"]["offset_us"]
     with _Open(rendered) as scene:
         res = sync_scene(scene)
-        edges = refine.refine_offset_from_sync(scene, res)
+        edges = sync_edges.refine_offset_from_sync(scene, res)
         unreliable = SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
-        kept = refine.refine_offset_from_sync(scene, unreliable)
+        kept = sync_edges.refine_offset_from_sync(scene, unreliable)
     assert res.reliable and edges.accepted, edges.reason
     err_rate, err_edges = res.offset_us - true_off, edges.offset_us - true_off
     print(f"rate {err_rate} us (std {res.offset_std_us:.0f}), edges {err_edges} us (std {edges.offset_std_us:.0f}), "
@@ -479,9 +479,9 @@ def test_rate_then_edges_pins_the_offset(rendered):
     assert edges.skew_ppm == pytest.approx(0.0, abs=3 * max(edges.skew_std_ppm, 5.0))
     json.dumps(edges.to_json())
     assert not kept.accepted and "no reliable" in kept.reason
-    assert refine.sync_edge_half_range_us(res) == pytest.approx(
-        np.clip(3 * res.offset_std_us, refine.SYNC_EDGE_MIN_RANGE_US, refine.SYNC_EDGE_MAX_RANGE_US))
-    assert refine.sync_edge_half_range_us(unreliable) == refine.SYNC_EDGE_MAX_RANGE_US
+    assert sync_edges.sync_edge_half_range_us(res) == pytest.approx(
+        np.clip(3 * res.offset_std_us, sync_edges.SYNC_EDGE_MIN_RANGE_US, sync_edges.SYNC_EDGE_MAX_RANGE_US))
+    assert sync_edges.sync_edge_half_range_us(unreliable) == sync_edges.SYNC_EDGE_MAX_RANGE_US
 
 
 def test_cli_sync_edges_apply(rendered, tmp_path):

@@ -211,7 +211,7 @@ def test_an_11_day_gap_is_a_hole_and_nothing_hangs(tiny_scene_dir, tmp_path):
 
 # ------------------------------------------------------------------------------------------------ sync, refine
 def test_sync_and_refine_use_no_window_and_no_bin_in_a_hole(holed):
-    from evpose.core.align.refine import _Window, choose_windows
+    from evpose.core.align.event_windows import EventWindow, choose_windows
     from evpose.core.align.scene_proxy import scene_motion_proxy
 
     holed_dir, (a, b) = holed
@@ -225,7 +225,7 @@ def test_sync_and_refine_use_no_window_and_no_bin_in_a_hole(holed):
     assert np.array_equal(ok, ~touches & (starts >= 0))
     wins = choose_windows(s, 200, 10_000, s.object_names)
     assert wins and all(w1 <= a or w0 >= b for w0, w1 in wins)          # no chosen window overlaps the hole
-    w = _Window(s, a - 5000, b + 5000, s.clock, 10**6)                   # a window forced across the hole
+    w = EventWindow(s, a - 5000, b + 5000, s.clock, 10**6)               # a window forced across the hole
     inside = (w.ev_t > a) & (w.ev_t < b)
     assert inside.any() and not w.ok[inside].any() and w.ok[~inside].all()
     s.close()
