@@ -17,10 +17,10 @@ from pathlib import Path
 
 from PySide6 import QtCore, QtWidgets
 
-from evpose.app.cli.main import _input_errors
 from evpose.app.workers import Job, progress_dialog
 from evpose.core.document.corrections import CorrectionsError, CorrectionsWarning
 from evpose.core.document.corrections_merge import CorrectionsConflict
+from evpose.core.errors import InputError
 from evpose.core.session import Session
 
 
@@ -141,7 +141,7 @@ class Controller(QtCore.QObject):
                 if not issubclass(w.category, CorrectionsWarning):
                     warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             _ = session.scene.events.n_events, session.scene.trajectory  # fail now, not at first draw
-        except _input_errors() as exc:
+        except (InputError, OSError) as exc:     # bad input, or the system refused a read
             self.error("Cannot open the scene", str(exc))
             self.window.settings.remove_recent(path)
             return None

@@ -6,6 +6,8 @@ import sys
 import traceback
 from pathlib import Path
 
+from evpose.core.errors import InputError
+
 
 def _install_excepthook(window) -> None:
     """Unexpected errors become a dialog (and a traceback on stderr), never a silent crash."""
@@ -45,12 +47,10 @@ def _one_line(message: str) -> str:
 def _load_for_unattended(session) -> str | None:
     """Load every mesh now (an unattended run has no dialog to show a late error in); returns the
     error line or None."""
-    from evpose.app.cli.main import _input_errors
-
     try:
         for name in session.scene.object_names:
             session.scene.model(name)
-    except _input_errors() as exc:
+    except (InputError, OSError) as exc:
         return str(exc)
     return None
 

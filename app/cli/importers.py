@@ -1,20 +1,24 @@
-"""``evpose import FORMAT SRC... --out SCENE`` (DESIGN section 5).
+"""``evpose import FORMAT SRC... --out SCENE`` (DESIGN section 5): published data into a scene folder.
 
-Wire it with ``add_import_parser(subparsers)`` in ``core/cli.py``. The command prints its summary on stdout
-(one JSON document with ``--json``), assumptions/repairs/warnings and a tqdm progress bar on stderr, and exits
-with 0 on success, 2 on bad input (message ``evpose import: error: FILE: RECORD: FIELD: problem`` on stderr),
-130 when cancelled or interrupted. A failed import leaves no scene folder behind.
+The command prints its summary on stdout (one JSON document with ``--json``), assumptions, repairs,
+warnings and a progress bar on stderr. Bad input ends in ``evpose import: error: FILE: RECORD: FIELD:
+problem`` (exit 2; :mod:`evpose.app.cli.errors`); a failed or cancelled import leaves no scene folder behind.
+The readers are imported when the command runs, not when the parser is built.
 """
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 
-from evpose.core.importers import FORMATS
+from evpose.app.cli.errors import command
+from evpose.app.cli.json_output import emit
+from evpose.app.cli.options import check_float, check_int
+from evpose.app.cli.progress import Progress
 
-EXIT_BAD_INPUT = 2
-EXIT_INTERRUPTED = 130
+__all__ = ["add_import_parser", "cmd_import", "FORMAT_NAMES"]
+
+#: The formats of :data:`evpose.core.importers.FORMATS`, in its order, named here so that building the
+#: parser does not load the readers (a test keeps the two equal).
+FORMAT_NAMES = ("epose-bag", "epose-export", "dsec", "rpg", "ycbev", "npz")
 
 _EPILOG = """formats and their sources:
   epose-bag     REC.bag                         [--assets DIR --scene S --sequence Q | --camera --objects]
@@ -32,7 +36,7 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     s = subparsers.add_parser("import", help="turn published data into a scene folder",
                               description="Import published event-camera data into a scene folder.",
                               epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    s.add_argument("format", metavar="FORMAT", choices=sorted(FORMATS), help=", ".join(FORMATS))
+    s.add_argument("format", metavar="FORMAT", choices=sorted(FORMAT_NAMES), help=", ".join(FORMAT_NAMES))
     s.add_argument("src", metavar="SRC", nargs="+", help="input files or folders (never modified)")
     s.add_argument("--out", required=True, help="scene folder to create")
     g = s.add_argument_group("common")
@@ -56,7 +60,8 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--reorder-window-ms", type=float, default=100.0,
                    help="events may arrive this much out of order (bounded stream merge); default 100")
     g = s.add_argument_group("epose-bag / epose-export")
-    g.add_argument("--assets", help="E-POSE assets folder (camera_davis346.json, models/, scenes.json, time_shifts.csv)")
+    g.add_argument("--assets",
+                   help="E-POSE assets folder (camera_davis346.json, models/, scenes.json, time_shifts.csv)")
     g.add_argument("--scene", help="scene in scenes.json, e.g. five_obj_clut (aliases accepted)")
     g.add_argument("--sequence", help="sequence in time_shifts.csv, e.g. R_05_ml (case-insensitive)")
     g.add_argument("--events-topic", default="/dvs/events")
@@ -83,122 +88,56 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     return s
 
 
-def check_args(args) -> str | None:
-    """The first nonsensical numeric option as one message naming it (None when all are sane); checked before
-    anything is read. Deeper checks (units, calibration) stay with :class:`~.common.ImportOptions` and the
-    formats."""
-    import math
-
+def check_args(args) -> None:
+    """Refuse the first nonsensical numeric option with one line naming it, before anything is read.
+    Deeper checks (units, calibration) stay with :class:`~evpose.core.importers.options.ImportOptions`
+    and the formats."""
     from evpose.core.data.camera import MAX_SIDE_PX
-    from evpose.core.data.trajectory import MAX_ABS_TIME_US
+    from evpose.core.data.clock import MAX_ABS_TIME_US
 
-    def bad_float(name, v, lo, hi, lo_open=False):
-        if v is None:
-            return None
-        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
-            return f"{name}: must be a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {v}"
-        return None
-
-    def bad_int(name, v, lo, hi):
-        if v is not None and not lo <= v <= hi:
-            return f"{name}: must be an integer in [{lo}, {hi}], got {v}"
-        return None
-
-    checks = (
-        bad_float("--max-span-s", args.max_span_s, 0.0, 10 * 365 * 86400.0, lo_open=True),
-        bad_float("--reorder-window-ms", args.reorder_window_ms, 0.0, 3_600_000.0),
-        bad_float("--mesh-scale", args.mesh_scale, 0.0, 1e6, lo_open=True),
-        bad_int("--width", args.width, 1, MAX_SIDE_PX),
-        bad_int("--height", args.height, 1, MAX_SIDE_PX),
-        bad_int("--offset-us", args.offset_us, -MAX_ABS_TIME_US, MAX_ABS_TIME_US),
-        bad_int("--time-origin-us", args.time_origin_us, -MAX_ABS_TIME_US, MAX_ABS_TIME_US),
-        bad_int("--frame-us", args.frame_us, 1, 10**9),
-        bad_int("--frame-index-offset", args.frame_index_offset, -10**9, 10**9),
-    )
-    return next((c for c in checks if c), None)
+    check_float("--max-span-s", args.max_span_s, 0.0, 10 * 365 * 86400.0, lo_open=True)
+    check_float("--reorder-window-ms", args.reorder_window_ms, 0.0, 3_600_000.0)
+    check_float("--mesh-scale", args.mesh_scale, 0.0, 1e6, lo_open=True)
+    check_int("--width", args.width, 1, MAX_SIDE_PX)
+    check_int("--height", args.height, 1, MAX_SIDE_PX)
+    check_int("--offset-us", args.offset_us, -MAX_ABS_TIME_US, MAX_ABS_TIME_US)
+    check_int("--time-origin-us", args.time_origin_us, -MAX_ABS_TIME_US, MAX_ABS_TIME_US)
+    check_int("--frame-us", args.frame_us, 1, 10**9)
+    check_int("--frame-index-offset", args.frame_index_offset, -10**9, 10**9)
 
 
 def options_from_args(args):
-    from evpose.core.importers.common import ImportOptions
+    from evpose.core.importers import ImportOptions
 
     return ImportOptions(
         repair=args.repair, force=args.force, name=args.name, camera=args.camera, width=args.width,
         height=args.height, objects=args.objects, time_unit=args.time_unit, offset_us=args.offset_us,
-        reorder_window_us=int(round(args.reorder_window_ms * 1000)), max_span_s=args.max_span_s, assets=args.assets, scene=args.scene,
+        reorder_window_us=int(round(args.reorder_window_ms * 1000)), max_span_s=args.max_span_s, assets=args.assets,
+        scene=args.scene,
         sequence=args.sequence, events_topic=args.events_topic, pose_topic=args.pose_topic, pose_time=args.pose_time,
         one_based=args.one_based, classes=args.classes, events_mode=args.events_mode, camera_key=args.camera_key,
         models=args.models, mesh_scale=args.mesh_scale, frame_us=args.frame_us,
         frame_index_offset=args.frame_index_offset, time_origin_us=args.time_origin_us, rgb_to_event=args.rgb_to_event)
 
 
-def cmd_import(args) -> int:
-    from tqdm import tqdm
+def summary_text(summary: dict) -> str:
+    return (f"wrote {summary['scene']}: {summary.get('n_events'):,} events, {summary['n_poses']} poses, "
+            f"objects: {', '.join(summary['objects']) or '(none)'} in {summary['runtime_s']:.2f} s "
+            f"({len(summary['assumptions'])} assumptions, {len(summary['repairs'])} repairs, "
+            f"{len(summary['warnings'])} warnings: see {summary['report']})")
 
-    from evpose.core.data.events import Cancelled
+
+@command("import", cancelled="cancelled (nothing written)")
+def cmd_import(args) -> int:
     from evpose.core.importers import import_scene
-    from evpose.core.importers.common import ImportFailure
 
     quiet = getattr(args, "quiet", False)
-    problem = check_args(args)
-    if problem:
-        print(f"evpose import: error: {problem}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    check_args(args)
+    with Progress(f"import {args.format}", not quiet, leave=False) as progress:
+        def log(line: str) -> None:
+            if not quiet or line.startswith("warning"):
+                progress.write(f"evpose import: {line}")
 
-    def log(line: str) -> None:
-        if quiet and not line.startswith("warning"):
-            return
-        (bar.write if bar is not None else print)(f"evpose import: {line}", file=sys.stderr)
-
-    bar = None if quiet else tqdm(total=1000, desc=f"import {args.format}", unit="‰", file=sys.stderr,
-                                  leave=False, bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining} {postfix}")
-
-    def progress(fraction: float, message: str = "") -> None:
-        if bar is not None:
-            bar.update(int(fraction * 1000) - bar.n)
-            if message:
-                bar.set_postfix_str(message, refresh=False)
-
-    try:
         summary = import_scene(args.format, args.src, args.out, options_from_args(args), progress=progress, log=log)
-    except ImportFailure as exc:
-        if bar is not None:
-            bar.close()
-        print(f"evpose import: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except Cancelled:
-        if bar is not None:
-            bar.close()
-        print("evpose import: cancelled (nothing written)", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except BaseException:
-        if bar is not None:
-            bar.close()
-        raise
-    if bar is not None:
-        bar.close()
-    if args.json:
-        sys.stdout.write(json.dumps(summary, indent=1) + "\n")
-    else:
-        n_ev = summary.get("n_events")
-        sys.stdout.write(f"wrote {summary['scene']}: {n_ev:,} events, {summary['n_poses']} poses, "
-                         f"objects: {', '.join(summary['objects']) or '(none)'} in {summary['runtime_s']:.2f} s "
-                         f"({len(summary['assumptions'])} assumptions, {len(summary['repairs'])} repairs, "
-                         f"{len(summary['warnings'])} warnings: see {summary['report']})\n")
+    emit(args, summary, summary_text(summary))
     return 0
-
-
-def main(argv=None) -> int:
-    """Stand-alone entry (``python -m evpose.app.cli.importers import ...``) until core/cli.py wires it."""
-    p = argparse.ArgumentParser(prog="evpose")
-    sub = p.add_subparsers(dest="command", required=True)
-    add_import_parser(sub)
-    args = p.parse_args(argv)
-    try:
-        return args.func(args)
-    except KeyboardInterrupt:
-        print("evpose import: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-
-
-if __name__ == "__main__":
-    sys.exit(main())

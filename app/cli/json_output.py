@@ -1,0 +1,65 @@
+"""What a command prints on stdout: one JSON document with ``--json``, else its text summary.
+
+DESIGN section 5: ``--json`` prints one JSON document on stdout and nothing else there. While a
+command runs with ``--json`` (see :func:`evpose.app.cli.errors.command`), stdout is reserved: anything
+else printed to it (a library's message, a stray ``print``) goes to stderr, and :func:`emit` writes the
+document to the real stdout. Messages, warnings and progress always go to stderr.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import sys
+from contextvars import ContextVar
+
+__all__ = ["emit", "dumps", "to_jsonable", "stdout_reserved_for_json"]
+
+#: The stream the JSON document goes to while stdout is reserved (None: not reserved).
+_document_stream: ContextVar = ContextVar("evpose_cli_document_stream", default=None)
+
+
+def to_jsonable(o):
+    """``json`` fallback for NumPy values: integers -> int, floats -> float (null when not finite),
+    arrays -> lists; anything else is a bug (``TypeError``)."""
+    import numpy as np  # only reached for non-JSON values; a command printing them has loaded numpy
+
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def dumps(data) -> str:
+    """The document as evpose prints it (indent 1)."""
+    return json.dumps(data, indent=1, default=to_jsonable)
+
+
+@contextlib.contextmanager
+def stdout_reserved_for_json(enabled: bool):
+    """While the block runs, stdout belongs to the one JSON document (when ``enabled``): anything else
+    printed to ``sys.stdout`` goes to stderr; :func:`emit` writes to the stdout of the caller."""
+    if not enabled:
+        yield
+        return
+    token = _document_stream.set(sys.stdout)
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        _document_stream.reset(token)
+
+
+def emit(args, data: dict, text: str) -> None:
+    """Print the command's result: ``data`` as one JSON document with ``--json``, else ``text``."""
+    if getattr(args, "json", False):
+        out = _document_stream.get() or sys.stdout
+        out.write(dumps(data) + "\n")
+        out.flush()
+    else:
+        sys.stdout.write(text.rstrip() + "\n")

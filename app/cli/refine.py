@@ -1,0 +1,86 @@
+"""``evpose refine SCENE [--object NAME] [--offset] [--json] [--apply]``: object poses (and the clock
+offset) from event/edge alignment (DESIGN section 5: per object ``dR_deg``, ``dt_mm``,
+``score_before``, ``score_after``, ``runtime_s``). ``--apply`` stores the accepted results as one undo step
+and saves (:func:`evpose.app.cli.estimates.save_applied`)."""
+from __future__ import annotations
+
+from evpose.app.cli.errors import CliError, command
+from evpose.app.cli.estimates import check_windows, edges_line, save_applied
+from evpose.app.cli.json_output import emit
+from evpose.app.cli.progress import Progress
+
+__all__ = ["cmd_refine", "object_line"]
+
+
+def object_names(scene, args) -> list[str]:
+    """The objects to refine: ``--object`` (refused with one line when the scene has none of that name) or all."""
+    names = [args.object] if args.object else scene.object_names
+    for n in names:
+        if n not in scene.object_names:
+            raise CliError(f"{scene.manifest.path}: objects: no object named {n!r} "
+                           f"(have {', '.join(scene.object_names) or 'none'})")
+    return names
+
+
+def object_line(name: str, r) -> str:
+    """One line for the pose refinement ``r`` of object ``name``."""
+    sb = "n/a" if r.score_before is None else f"{r.score_before:.3f}"
+    sa = "n/a" if r.score_after is None else f"{r.score_after:.3f}"
+    return (f"{name}: {'accepted' if r.accepted else 'kept start'}: dR {r.dR_deg:.3f} deg, dt "
+            f"{r.dt_mm:.2f} mm; score {sb} -> {sa}; {r.n_windows} windows, {r.iterations} "
+            f"iterations, {r.runtime_s:.1f} s" + (f" ({r.reason})" if r.reason else ""))
+
+
+def _refine(scene, args, out: dict, lines: list[str]) -> bool:
+    """Refine the offset (with ``--offset``) then each object's pose; fills ``out`` and ``lines``.
+    Returns whether ``--apply`` changed the document (one undo step)."""
+    from evpose.core.align.apply import apply_offset_result
+    from evpose.core.align.clock_refine import refine_offset
+    from evpose.core.align.pose_refine import refine_object
+    from evpose.core.align.refine_result import RefineParams
+    from evpose.core.document.history import History
+
+    names = object_names(scene, args)
+    params = RefineParams(n_windows=args.windows)
+    history = History(scene.corrections)
+    changed = False
+    clock = None
+    with history.group("refine from events"):
+        if args.offset:
+            with Progress("refine offset", not args.quiet) as progress:
+                r = refine_offset(scene, params=params, progress=progress)
+            out["offset"] = r.to_json()
+            lines.append(edges_line(r, "offset from edges")
+                         + f"; objective {r.objective_before:.4f} -> {r.objective_after:.4f}")
+            if r.accepted:
+                clock = scene.clock_with(offset_us=int(r.offset_us), skew_ppm=r.skew_ppm)  # poses fit on it
+            if args.apply:
+                changed |= apply_offset_result(history, scene, r)
+        for n in names:
+            with Progress(f"refine {n}", not args.quiet) as progress:
+                r = refine_object(scene, n, params=params, clock=clock, progress=progress)
+            out["objects"][n] = r.to_json()
+            lines.append(object_line(n, r))
+            if args.apply and r.accepted:
+                history.set(("object", n), r.dT_base)
+                changed = True
+    return changed
+
+
+@command("refine")
+def cmd_refine(args) -> int:
+    check_windows(args)
+    from evpose.core.data.scene import Scene
+
+    scene = Scene.open(args.scene)
+    out: dict = {"objects": {}}
+    lines: list[str] = []
+    try:
+        changed = _refine(scene, args, out, lines)
+        out["applied"] = bool(args.apply and changed)
+        if out["applied"]:
+            lines.append(save_applied(scene, out))
+    finally:
+        scene.close()
+    emit(args, out, "\n".join(lines))
+    return 0
