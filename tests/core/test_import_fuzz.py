@@ -26,7 +26,7 @@ from test_importers import (  # noqa: F401
 )
 
 from evpose.core.data.event_store import EventStore
-from evpose.core.data.scene import load_manifest
+from evpose.core.data.manifest_reader import load_manifest
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.importers import ImportFailure, import_scene
 

@@ -4,9 +4,12 @@ import numpy as np
 import pytest
 import tomli_w
 
-from evpose.core.data.events import EventArray, write_events_h5
+from evpose.core.data.event_writer import write_events_h5
+from evpose.core.data.events import EventArray
 from evpose.core.data.geometry import T_from_rotvec, apply_T, inv_T
-from evpose.core.data.scene import Scene, SceneError, load_manifest
+from evpose.core.data.manifest import SceneError
+from evpose.core.data.manifest_reader import load_manifest
+from evpose.core.data.scene import Scene
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.document.history import History
 
