@@ -4,7 +4,6 @@ from __future__ import annotations
 import re
 import sys
 import traceback
-from pathlib import Path
 
 from evpose.core.errors import InputError
 
@@ -55,6 +54,25 @@ def _load_for_unattended(session) -> str | None:
     return None
 
 
+#: The app icon in ``evpose.resources``: the drawing, and a 256 px rendering of it for Qt builds
+#: without the SVG plugin.
+ICON_FILES = ("evpose.svg", "evpose.png")
+
+
+def app_icon():
+    """The evpose icon (``resources/evpose.svg``, with its PNG rendering), as a ``QIcon``."""
+    from importlib.resources import files
+
+    from PySide6 import QtGui
+
+    icon = QtGui.QIcon()
+    for name in ICON_FILES:
+        path = files("evpose.resources") / name
+        if path.is_file():
+            icon.addFile(str(path))
+    return icon
+
+
 def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_after: float | None = None,
             start_busiest: bool = False) -> int:
     """Open the main window (on ``scene`` if given) and run the event loop.
@@ -64,7 +82,7 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     any X display, including Xvfb. ``start_busiest`` opens at the window with the most events
     (the demo uses it so the first view shows motion).
     """
-    from PySide6 import QtCore, QtGui, QtWidgets
+    from PySide6 import QtCore, QtWidgets
 
     from evpose.app.main_window import MainWindow
     from evpose.app.qt_compat import guard_pyside_refcount_leak
@@ -74,9 +92,7 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     QtCore.QCoreApplication.setOrganizationName("evpose")
     QtCore.QCoreApplication.setApplicationName("evpose")
     app = QtWidgets.QApplication.instance() or QtWidgets.QApplication(sys.argv[:1])
-    icon = Path(__file__).resolve().parents[1] / "resources" / "evpose.svg"
-    if icon.is_file():
-        app.setWindowIcon(QtGui.QIcon(str(icon)))
+    app.setWindowIcon(app_icon())
     window = MainWindow()
     unattended = screenshot is not None or quit_after is not None
     window.modal_dialogs = not unattended
