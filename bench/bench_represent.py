@@ -1,4 +1,4 @@
-"""Time per DAVIS346 event frame (core/represent.py) for 10^4 .. 10^7 events in one 10 ms window.
+"""Time per DAVIS346 event frame (core/label/event_frames, represent) for 10^4 .. 10^7 events in one 10 ms window.
 
 Run: ``.venv/bin/python bench/bench_represent.py [--quick]``. Prints one table, milliseconds per frame
 (best of several repeats; inputs prepared outside the timing):
@@ -27,6 +27,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from evpose.core.data.camera import CameraModel  # noqa: E402
 from evpose.core.data.events import EventArray  # noqa: E402
 from evpose.core.label import represent as R  # noqa: E402
+from evpose.core.label.event_frames.counts import polarity_counts  # noqa: E402
+from evpose.core.label.event_frames.three_channel import three_channel  # noqa: E402
+from evpose.core.label.event_frames.time_surface import time_surface  # noqa: E402
+from evpose.core.label.event_frames.undistort import clear_undistorter_cache, undistorter_for  # noqa: E402
+from evpose.core.label.event_frames.voxel_grid import voxel_grid  # noqa: E402
 
 W, H = 346, 260
 T0, T1 = 1_700_000_000_000_000, 1_700_000_000_010_000     # epoch µs, 10 ms window
@@ -52,9 +57,9 @@ def main(argv=None):
     quick = "--quick" in (argv if argv is not None else sys.argv[1:])
     sizes = [10**4, 10**5, 10**6] if quick else [10**4, 10**5, 10**6, 10**7]
     cam = CameraModel.davis346()
-    R.clear_undistorter_cache()
+    clear_undistorter_cache()
     s = time.perf_counter()
-    und = R.undistorter_for(cam)
+    und = undistorter_for(cam)
     build_ms = (time.perf_counter() - s) * 1e3
     print(f"numpy {np.__version__}, {os.cpu_count()} cores; DAVIS346 {W}x{H}, 10 ms window, ms per frame (best of n)")
     print(f"undistortion table built once in {build_ms:.1f} ms ({und.n_valid} of {W * H} pixels map into the image)")
@@ -79,18 +84,18 @@ def main(argv=None):
             np.add.at(c, keys, 1)
             return c
 
-        pos, neg = R.polarity_counts(ev, W, H)
+        pos, neg = polarity_counts(ev, W, H)
         ref = add_at_tuple()
         assert np.array_equal(pos, ref[1]) and np.array_equal(neg, ref[0])
         t = {
-            "counts": best_ms(lambda: R.polarity_counts(ev, W, H), reps),
+            "counts": best_ms(lambda: polarity_counts(ev, W, H), reps),
             "add.at(p,y,x)": best_ms(add_at_tuple, reps),
             "bc flat": best_ms(lambda: np.bincount(keys, minlength=2 * H * W), reps),
             "add.at flat": best_ms(add_at_flat, reps),
-            "3ch": best_ms(lambda: R.three_channel(ev, W, H, T0, T1), reps),
-            "voxel5": best_ms(lambda: R.voxel_grid(ev, W, H, T0, T1, bins=5), reps),
-            "tsurf": best_ms(lambda: R.time_surface(ev, W, H, T1, polarity="split"), reps),
-            "undist": best_ms(lambda: R.polarity_counts(und.apply(ev), W, H), reps),
+            "3ch": best_ms(lambda: three_channel(ev, W, H, T0, T1), reps),
+            "voxel5": best_ms(lambda: voxel_grid(ev, W, H, T0, T1, bins=5), reps),
+            "tsurf": best_ms(lambda: time_surface(ev, W, H, T1, polarity="split"), reps),
+            "undist": best_ms(lambda: polarity_counts(und.apply(ev), W, H), reps),
             "rgb": best_ms(lambda: R.to_rgb("polarity", ev, W, H, T0, T1), reps),
         }
         t["ratio"] = t["add.at(p,y,x)"] / t["counts"]

@@ -271,7 +271,7 @@ class Trajectory:
     # ------------------------------------------------------------------ files
     def save_csv(self, path) -> Path:
         """Write ``t_us,x,y,z,qx,qy,qz,qw`` atomically; floats with repr precision (exact round trip)."""
-        from evpose.core.data.trajectory_csv import write_pose_csv   # (it imports TrajectoryError from here)
+        from evpose.core.data.trajectory_csv import write_pose_csv  # (it imports TrajectoryError from here)
 
         return write_pose_csv(path, self.t_us, self.positions_m, self.quats_xyzw)
 

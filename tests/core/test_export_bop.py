@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from evpose.core.data.scene import Scene
 from evpose.core.document.corrections import ReviewMark
 from evpose.core.export import export_scene
-from evpose.core.label.represent import undistorter_for
+from evpose.core.label.event_frames.undistort import undistorter_for
 from evpose.core.sim.synth import load_ground_truth
 
 

@@ -275,8 +275,9 @@ def test_defect_margin_shifts_instead_of_enlarging(tiny_scene_dir, tmp_path):
 def test_defect_three_channel_accumulators_leak(exported):
     """Original: the 3-channel accumulators were never reset, so every image held all earlier windows.
     Each image must be a function of its own window's events: zero wherever the window has no event,
-    non-zero wherever it has one, equal to evpose.core.label.represent on that window alone."""
-    from evpose.core.label.represent import three_channel, three_channel_rgb
+    non-zero wherever it has one, equal to evpose.core.label.event_frames on that window alone."""
+    from evpose.core.label.event_frames.display import three_channel_rgb
+    from evpose.core.label.event_frames.three_channel import three_channel
 
     scene_dir, out, _ = exported
     store = EventStore(Path(scene_dir) / "events.h5")

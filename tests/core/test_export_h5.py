@@ -12,7 +12,7 @@ from evpose.core.data.events import Cancelled
 from evpose.core.data.scene import Scene
 from evpose.core.export import export_scene
 from evpose.core.label.annotate import Annotator, Request, time_windows
-from evpose.core.label.represent import polarity_counts
+from evpose.core.label.event_frames.counts import polarity_counts
 
 DATASETS = ("windows", "T_cam_obj", "T_base_cam", "bbox_obj", "bbox_visib", "keypoints_uv", "corners_cam",
             "center_uv", "visib_fract", "px_count_all", "px_count_visib", "label_map", "frames/counts",

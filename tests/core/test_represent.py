@@ -12,6 +12,13 @@ from hypothesis import strategies as st
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.events import EventArray
 from evpose.core.label import represent as R
+from evpose.core.label.event_frames import accumulate
+from evpose.core.label.event_frames.counts import polarity_counts, spike
+from evpose.core.label.event_frames.display import gray_rgb, polarity_rgb, three_channel_rgb
+from evpose.core.label.event_frames.three_channel import three_channel
+from evpose.core.label.event_frames.time_surface import time_surface
+from evpose.core.label.event_frames.undistort import EventUndistorter, clear_undistorter_cache, undistorter_for
+from evpose.core.label.event_frames.voxel_grid import voxel_grid
 
 W, H = 346, 260          # DAVIS346; W != H so that an x/y swap cannot pass
 
@@ -41,7 +48,7 @@ def test_polarity_counts_match_add_at_with_duplicates_and_edge_pixels():
     ey = np.array([e[1] for e in edges] * 3)
     ep = np.array([1] * len(edges) + [0] * len(edges) + [1] * len(edges))
     ev = EventArray(np.r_[ev.x, ex], np.r_[ev.y, ey], np.r_[ev.t, np.full(len(ex), 9_999)], np.r_[ev.p, ep])
-    pos, neg = R.polarity_counts(ev, W, H)
+    pos, neg = polarity_counts(ev, W, H)
     opos, oneg = oracle_counts(ev)
     assert pos.shape == neg.shape == (H, W)
     assert np.array_equal(pos, opos) and np.array_equal(neg, oneg)
@@ -52,10 +59,10 @@ def test_polarity_counts_match_add_at_with_duplicates_and_edge_pixels():
 def test_events_on_row_zero_and_column_zero_are_counted():
     # The original E-POSE scripts dropped x=0 / y=0 events; each must land exactly at [v, u].
     ev = EventArray([0, 5, 0, 300], [7, 0, 0, 10], [0, 1, 2, 3], [1, 1, 0, 1])
-    pos, neg = R.polarity_counts(ev, W, H)
+    pos, neg = polarity_counts(ev, W, H)
     assert pos[7, 0] == 1 and pos[0, 5] == 1 and neg[0, 0] == 1 and pos[10, 300] == 1
     assert pos.sum() == 3 and neg.sum() == 1
-    assert R.spike(ev, W, H).sum() == 4 and R.spike(ev, W, H)[0, 0]
+    assert spike(ev, W, H).sum() == 4 and spike(ev, W, H)[0, 0]
 
 
 @settings(max_examples=60, deadline=None)
@@ -64,10 +71,10 @@ def test_polarity_counts_property_small_sensor(evs):
     w, h = 7, 5
     a = np.array(evs, dtype=np.int64).reshape(-1, 3)
     ev = EventArray(a[:, 0], a[:, 1], np.arange(len(a)), a[:, 2])
-    pos, neg = R.polarity_counts(ev, w, h)
+    pos, neg = polarity_counts(ev, w, h)
     opos, oneg = oracle_counts(ev, w, h)
     assert np.array_equal(pos, opos) and np.array_equal(neg, oneg)
-    assert np.array_equal(R.spike(ev, w, h), (opos + oneg) > 0)
+    assert np.array_equal(spike(ev, w, h), (opos + oneg) > 0)
 
 
 def test_ten_million_events_in_one_millisecond_on_a_few_pixels_no_overflow():
@@ -78,11 +85,11 @@ def test_ten_million_events_in_one_millisecond_on_a_few_pixels_no_overflow():
     t = np.sort(np.random.default_rng(0).integers(5_000_000, 5_001_000, len(x)))   # 1 ms window
     ev = EventArray(x, y, t, p)
     assert len(ev) == 10**7
-    pos, neg = R.polarity_counts(ev, W, H)
+    pos, neg = polarity_counts(ev, W, H)
     assert pos.dtype == np.int64 and neg.dtype == np.int64
     assert pos[0, 0] == n_a and neg[H - 1, W - 1] == n_b and pos[50, 100] == n_c
     assert pos.sum() + neg.sum() == 10**7
-    img = R.three_channel(ev, W, H, 5_000_000, 5_001_000)
+    img = three_channel(ev, W, H, 5_000_000, 5_001_000)
     assert img[0, 0, 0] == 1.0 and img[H - 1, W - 1, 1] == 1.0
     assert img[50, 100, 0] == pytest.approx(n_c / n_a, rel=1e-6)
 
@@ -93,9 +100,9 @@ def test_ten_million_events_in_one_millisecond_on_a_few_pixels_no_overflow():
     ("p", EventArray(np.array([0], np.uint16), np.array([0], np.uint16), np.array([0]), np.array([2], np.uint8))),
 ])
 def test_out_of_sensor_events_raise_naming_the_field(field, ev):
-    for f in (lambda: R.polarity_counts(ev, W, H), lambda: R.spike(ev, W, H),
-              lambda: R.time_surface(ev, W, H, 10), lambda: R.voxel_grid(ev, W, H, 0, 10),
-              lambda: R.three_channel(ev, W, H, 0, 10)):
+    for f in (lambda: polarity_counts(ev, W, H), lambda: spike(ev, W, H),
+              lambda: time_surface(ev, W, H, 10), lambda: voxel_grid(ev, W, H, 0, 10),
+              lambda: three_channel(ev, W, H, 0, 10)):
         with pytest.raises(ValueError, match=rf"^{field}: "):
             f()
 
@@ -115,7 +122,7 @@ def oracle_three_channel(ev, t0, width=W, height=H):
 def test_three_channel_matches_loop_oracle_and_is_normalised():
     t0, t1 = 1_000_000, 1_010_000
     ev = rand_events(3_000, seed=2, t0=t0, t1=t1, width=40, height=30)
-    img = R.three_channel(ev, 40, 30, t0, t1)
+    img = three_channel(ev, 40, 30, t0, t1)
     assert img.dtype == np.float32 and img.shape == (30, 40, 3)
     assert np.allclose(img, oracle_three_channel(ev, t0, 40, 30), atol=1e-6)
     assert [float(img[..., c].max()) for c in range(3)] == [1.0, 1.0, 1.0]
@@ -125,27 +132,27 @@ def test_three_channel_matches_loop_oracle_and_is_normalised():
 def test_three_channel_time_channel_orders_events_and_marks_an_event_at_t0():
     t0, t1 = 500, 1_500
     ev = EventArray([1, 2, 3, 3], [0, 0, 0, 0], [t0, t0 + 10, t0 + 400, t1 - 1], [1, 0, 1, 0])
-    img = R.three_channel(ev, 5, 2, t0, t1)
+    img = three_channel(ev, 5, 2, t0, t1)
     c2 = img[..., 2]
     assert 0 < c2[0, 1] < c2[0, 2] < c2[0, 3] == 1.0        # later event -> larger value
     assert c2[0, 1] == pytest.approx(1 / 1000) and c2[0, 0] == 0 and c2[1].max() == 0
     # the pixel at (3, 0) has an ON at +400 and an OFF at t1-1: channel 2 takes the latest of either polarity
     assert img[0, 3, 0] == 1.0 and img[0, 3, 1] == 1.0
-    win = R.three_channel(ev, 5, 2, t0, t1, time_norm="window")[..., 2]
+    win = three_channel(ev, 5, 2, t0, t1, time_norm="window")[..., 2]
     assert win[0, 1] == pytest.approx(1 / 1000) and win[0, 3] == 1.0 and win[0, 2] == pytest.approx(11 / 1000)
     # events in the first half only: "max" stretches to 1, "window" keeps the absolute scale
     early = ev[np.array([True, True, True, False])]
-    assert R.three_channel(early, 5, 2, t0, t1)[..., 2].max() == 1.0
-    assert R.three_channel(early, 5, 2, t0, t1, time_norm="window")[..., 2].max() == pytest.approx(401 / 1000)
+    assert three_channel(early, 5, 2, t0, t1)[..., 2].max() == 1.0
+    assert three_channel(early, 5, 2, t0, t1, time_norm="window")[..., 2].max() == pytest.approx(401 / 1000)
 
 
 def test_three_channel_second_window_depends_only_on_its_own_events():
     # E-POSE never reset its accumulators: window 2 also showed window 1. Ours must not.
     ev1 = rand_events(5_000, seed=3, t0=0, t1=10_000, width=60, height=40)
     ev2 = rand_events(500, seed=4, t0=10_000, t1=20_000, width=30, height=20)   # a sub-region only
-    alone = R.three_channel(ev2, 60, 40, 10_000, 20_000)
-    R.three_channel(ev1, 60, 40, 0, 10_000)
-    after = R.three_channel(ev2, 60, 40, 10_000, 20_000)
+    alone = three_channel(ev2, 60, 40, 10_000, 20_000)
+    three_channel(ev1, 60, 40, 0, 10_000)
+    after = three_channel(ev2, 60, 40, 10_000, 20_000)
     assert np.array_equal(alone, after)
     assert alone[25:, :].max() == 0 and alone[:, 35:].max() == 0                  # nothing of window 1
     leaky = oracle_three_channel(EventArray.concatenate([ev1, ev2]), 0, 60, 40)  # the E-POSE defect
@@ -160,30 +167,30 @@ def test_empty_and_zero_length_windows_give_zeros_without_warnings():
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # any warning (numpy divide/invalid included) fails
         with np.errstate(all="raise"):
-            pos, neg = R.polarity_counts(e, W, H)
+            pos, neg = polarity_counts(e, W, H)
             assert pos.shape == (H, W) and pos.sum() == 0 and neg.sum() == 0
-            assert not R.spike(e, W, H).any()
+            assert not spike(e, W, H).any()
             for t0, t1 in ((0, 10_000), (7, 7)):
-                img = R.three_channel(e, W, H, t0, t1)
+                img = three_channel(e, W, H, t0, t1)
                 assert img.shape == (H, W, 3) and not img.any() and np.isfinite(img).all()
-                vg = R.voxel_grid(e, W, H, t0, t1, bins=5)
+                vg = voxel_grid(e, W, H, t0, t1, bins=5)
                 assert vg.shape == (5, H, W) and not vg.any()
                 for name in R.REPRESENTATIONS:
                     rgb = R.to_rgb(name, e, W, H, t0, t1)
                     assert rgb.dtype == np.uint8 and rgb.shape == (H, W, 3)
-            ts = R.time_surface(e, W, H, 100)
+            ts = time_surface(e, W, H, 100)
             assert ts.shape == (2, H, W) and not ts.any()
 
 
 def test_window_bounds_are_half_open_and_checked():
     ev = EventArray([1, 2], [1, 1], [100, 199], [1, 0])
-    assert R.three_channel(ev, 5, 5, 100, 200).any()                # t0 inside, t1 - 1 inside
+    assert three_channel(ev, 5, 5, 100, 200).any()                # t0 inside, t1 - 1 inside
     with pytest.raises(ValueError, match="^t: "):
-        R.three_channel(ev, 5, 5, 100, 199)                         # an event at t1 belongs to the next window
+        three_channel(ev, 5, 5, 100, 199)                         # an event at t1 belongs to the next window
     with pytest.raises(ValueError, match="^t: "):
-        R.voxel_grid(ev, 5, 5, 101, 300)
+        voxel_grid(ev, 5, 5, 101, 300)
     with pytest.raises(ValueError, match="reversed"):
-        R.three_channel(EventArray.empty(), 5, 5, 10, 9)
+        three_channel(EventArray.empty(), 5, 5, 10, 9)
     with pytest.raises(ValueError, match="^t: "):
         R.to_rgb("polarity", ev, 5, 5, 100, 199)
 
@@ -206,7 +213,7 @@ def oracle_time_surface(ev, t_ref, tau, split, width, height):
 def test_time_surface_matches_formula_and_ignores_later_events(polarity):
     ev = rand_events(4_000, seed=5, t0=0, t1=100_000, width=30, height=20, sort=False)   # order must not matter
     t_ref, tau = 60_000, 15_000.0
-    ts = R.time_surface(ev, 30, 20, t_ref, tau_us=tau, polarity=polarity)
+    ts = time_surface(ev, 30, 20, t_ref, tau_us=tau, polarity=polarity)
     ref = oracle_time_surface(ev, t_ref, tau, polarity == "split", 30, 20)
     assert ts.dtype == np.float32 and ts.shape == ref.shape
     assert np.allclose(ts, ref, rtol=1e-6, atol=1e-7)
@@ -215,11 +222,11 @@ def test_time_surface_matches_formula_and_ignores_later_events(polarity):
 
 def test_time_surface_event_at_reference_is_one_and_after_is_ignored():
     ev = EventArray([0, 1, 1, 2], [0, 0, 0, 0], [1_000, 1_000, 1_001, 1_001], [1, 0, 0, 1])
-    ts = R.time_surface(ev, 3, 1, 1_000, tau_us=100, polarity="split")
+    ts = time_surface(ev, 3, 1, 1_000, tau_us=100, polarity="split")
     assert ts[0, 0, 0] == 1.0 and ts[1, 0, 1] == 1.0          # ON first, OFF second
     assert ts[:, 0, 2].max() == 0                              # only event after t_ref
     assert ts[0, 0, 1] == 0 and ts[1, 0, 0] == 0
-    merged = R.time_surface(ev, 3, 1, 1_100, tau_us=100, polarity="merged")
+    merged = time_surface(ev, 3, 1, 1_100, tau_us=100, polarity="merged")
     assert merged[0, 1] == pytest.approx(np.exp(-99 / 100)) and merged[0, 2] == pytest.approx(np.exp(-99 / 100))
 
 
@@ -241,24 +248,24 @@ def oracle_voxel(ev, t0, t1, bins, width, height):
 def test_voxel_grid_matches_bilinear_oracle_and_sums_to_signed_counts(bins):
     t0, t1 = 3_000_000, 3_010_000
     ev = rand_events(3_000, seed=6, t0=t0, t1=t1, width=25, height=15)
-    vg = R.voxel_grid(ev, 25, 15, t0, t1, bins=bins)
+    vg = voxel_grid(ev, 25, 15, t0, t1, bins=bins)
     assert vg.dtype == np.float32 and vg.shape == (bins, 15, 25)
     assert np.allclose(vg, oracle_voxel(ev, t0, t1, bins, 25, 15), atol=1e-5)
-    pos, neg = R.polarity_counts(ev, 25, 15)
+    pos, neg = polarity_counts(ev, 25, 15)
     assert np.allclose(vg.sum(axis=0), pos - neg, atol=1e-4)
 
 
 def test_voxel_event_at_bin_centre_goes_to_one_bin_and_bilinear_split():
     t0, t1, B = 0, 8_000, 5                  # centres every 2000 µs: 0, 2000, 4000, 6000, 8000
     on_centre = EventArray([1], [1], [4_000], [1])
-    vg = R.voxel_grid(on_centre, 4, 3, t0, t1, B)
+    vg = voxel_grid(on_centre, 4, 3, t0, t1, B)
     assert vg[2, 1, 1] == 1.0 and np.count_nonzero(vg) == 1
     quarter = EventArray([2], [0], [2_500], [0])                 # 1/4 of the way from bin 1 to bin 2
-    vg = R.voxel_grid(quarter, 4, 3, t0, t1, B)
+    vg = voxel_grid(quarter, 4, 3, t0, t1, B)
     assert vg[1, 0, 2] == -0.75 and vg[2, 0, 2] == -0.25 and np.count_nonzero(vg) == 2
-    first = R.voxel_grid(EventArray([0], [0], [0], [1]), 4, 3, t0, t1, B)
+    first = voxel_grid(EventArray([0], [0], [0], [1]), 4, 3, t0, t1, B)
     assert first[0, 0, 0] == 1.0 and np.count_nonzero(first) == 1
-    last = R.voxel_grid(EventArray([0], [0], [t1 - 1], [1]), 4, 3, t0, t1, B)
+    last = voxel_grid(EventArray([0], [0], [t1 - 1], [1]), 4, 3, t0, t1, B)
     assert last[4, 0, 0] == pytest.approx(1 - 1 / 2000) and last[3, 0, 0] == pytest.approx(1 / 2000)
 
 
@@ -276,7 +283,7 @@ def test_straight_3d_line_becomes_straight_after_undistortion(davis):
     assert valid.all()
     pix = np.unique(np.rint(uv).astype(int), axis=0)
     ev = EventArray(pix[:, 0], pix[:, 1], np.arange(len(pix)), np.ones(len(pix), np.uint8))
-    und = R.EventUndistorter(davis).apply(ev)
+    und = EventUndistorter(davis).apply(ev)
     assert len(und) == len(ev)
     v_line = davis.K[1, 1] * -0.35 + davis.K[1, 2]                                  # the ideal pinhole image
     err_und = np.abs(und.y.astype(float) - v_line)
@@ -295,7 +302,7 @@ def test_straight_3d_line_becomes_straight_after_undistortion(davis):
 
 def test_undistorted_counts_are_conserved_against_per_event_cv2_oracle(davis):
     ev = rand_events(50_000, seed=7)
-    und = R.EventUndistorter(davis).apply(ev)
+    und = EventUndistorter(davis).apply(ev)
     # oracle: undistort every event on its own with cv2, round, keep those inside the image
     pts = np.stack([ev.x, ev.y], axis=1).astype(np.float64).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -307,12 +314,12 @@ def test_undistorted_counts_are_conserved_against_per_event_cv2_oracle(davis):
     assert np.array_equal(und.x, uvn[keep, 0].astype(np.uint16))
     assert np.array_equal(und.y, uvn[keep, 1].astype(np.uint16))
     assert np.array_equal(und.t, ev.t[keep]) and np.array_equal(und.p, ev.p[keep])   # order and times kept
-    pos, neg = R.polarity_counts(und, W, H)
+    pos, neg = polarity_counts(und, W, H)
     assert pos.sum() + neg.sum() == keep.sum()                                        # counts conserved
 
 
 def test_undistortion_table_reprojects_within_rounding(davis):
-    u = R.EventUndistorter(davis)
+    u = EventUndistorter(davis)
     vv, uu = np.nonzero(u.lut[..., 0] >= 0)
     und = u.lut[vv, uu].astype(np.float64)
     xy = (und - davis.K[:2, 2]) / np.diag(davis.K)[:2]
@@ -324,12 +331,12 @@ def test_undistortion_table_reprojects_within_rounding(davis):
     K_wide = davis.K.copy()
     K_wide[0, 0] *= 0.6
     K_wide[1, 1] *= 0.6
-    assert R.EventUndistorter(davis, K_wide).n_valid == W * H
+    assert EventUndistorter(davis, K_wide).n_valid == W * H
 
 
 def test_pinhole_camera_undistorter_is_identity():
     cam = CameraModel(CameraModel.davis346().K, [], W, H)
-    u = R.EventUndistorter(cam)
+    u = EventUndistorter(cam)
     assert u.identity and u.n_valid == W * H
     vv, uu = np.mgrid[0:H, 0:W]
     assert np.array_equal(u.lut[..., 0], uu) and np.array_equal(u.lut[..., 1], vv)
@@ -338,24 +345,24 @@ def test_pinhole_camera_undistorter_is_identity():
     for f in "xytp":
         assert np.array_equal(getattr(out, f), getattr(ev, f))
     # zero coefficients given explicitly: computed through cv2, still the identity
-    u0 = R.EventUndistorter(CameraModel(cam.K, [0, 0, 0, 0, 0], W, H))
+    u0 = EventUndistorter(CameraModel(cam.K, [0, 0, 0, 0, 0], W, H))
     assert np.array_equal(u0.lut, u.lut)
 
 
 def test_undistorter_cache_is_keyed_by_value(davis):
-    R.clear_undistorter_cache()
-    a = R.undistorter_for(davis)
-    assert R.undistorter_for(CameraModel.davis346()) is a           # another object, same parameters
+    clear_undistorter_cache()
+    a = undistorter_for(davis)
+    assert undistorter_for(CameraModel.davis346()) is a           # another object, same parameters
     K2 = davis.K * np.array([[0.9], [0.9], [1]])
-    b = R.undistorter_for(davis, K2)
-    assert b is not a and R.undistorter_for(davis, K2) is b
-    assert R.undistorter_for(CameraModel(davis.K, [], W, H)) is not a
+    b = undistorter_for(davis, K2)
+    assert b is not a and undistorter_for(davis, K2) is b
+    assert undistorter_for(CameraModel(davis.K, [], W, H)) is not a
     ev = rand_events(2_000, seed=9)
     with pytest.raises(ValueError, match="^x: "):
         a.apply(EventArray([W], [0], [0], [0]))
     ref = a.apply(ev)
     rgb = R.to_rgb("polarity", ev, W, H, 0, 10_000, camera=davis)
-    assert np.array_equal(rgb, R.polarity_rgb(*R.polarity_counts(ref, W, H)))
+    assert np.array_equal(rgb, polarity_rgb(*polarity_counts(ref, W, H)))
 
 
 # ------------------------------------------------------------------------------------------------ display
@@ -366,14 +373,14 @@ def test_polarity_rgb_colours(background, empty):
     pos[1, 2] = 3
     neg[3, 0] = 3
     pos[0, 4] = neg[0, 4] = 3
-    rgb = R.polarity_rgb(pos, neg, background=background)
+    rgb = polarity_rgb(pos, neg, background=background)
     assert rgb.dtype == np.uint8 and rgb.shape == (4, 5, 3)
     assert tuple(rgb[1, 2]) == (255, 0, 0)           # ON red
     assert tuple(rgb[3, 0]) == (0, 0, 255)           # OFF blue
     assert tuple(rgb[0, 4]) == (255, 0, 255)         # both: magenta
     assert tuple(rgb[2, 2]) == empty
     pos[2, 4] = 1                                    # a third of the scale (the 99th percentile is 3)
-    rgb = R.polarity_rgb(pos, neg, background=background)
+    rgb = polarity_rgb(pos, neg, background=background)
     assert tuple(rgb[2, 4]) == ((85, 0, 0) if background == "black" else (255, 170, 170))
 
 
@@ -383,30 +390,30 @@ def test_hot_pixel_does_not_wash_out_the_frame():
     idx = rng.choice(H * W, 2_000, replace=False)
     pos.flat[idx] = rng.integers(1, 4, idx.size)       # ordinary pixels: 1..3 events
     pos[5, 5] = 10**6                                    # hot pixel
-    rgb = R.polarity_rgb(pos, np.zeros_like(pos), background="black")
+    rgb = polarity_rgb(pos, np.zeros_like(pos), background="black")
     ordinary = pos.flat[idx]
     red = rgb[..., 0].reshape(-1)[idx]
     assert rgb[5, 5, 0] == 255
     assert (red[ordinary == 3] == 255).all() and (red[ordinary == 1] >= 80).all()
     naive = np.rint(255 * pos / pos.max()).reshape(-1)[idx]       # plain max scaling: all black
     assert naive.max() == 0
-    g = R.gray_rgb(pos, percentile=99)
+    g = gray_rgb(pos, percentile=99)
     assert (g[..., 0].reshape(-1)[idx][ordinary == 3] == 255).all()
 
 
 def test_gray_and_three_channel_rgb():
     b = np.zeros((3, 4), bool)
     b[1, 2] = True
-    g = R.gray_rgb(b)
+    g = gray_rgb(b)
     assert g.dtype == np.uint8 and g.shape == (3, 4, 3)
     assert tuple(g[1, 2]) == (255, 255, 255) and g.sum() == 3 * 255
-    gi = R.gray_rgb(b, invert=True)
+    gi = gray_rgb(b, invert=True)
     assert tuple(gi[1, 2]) == (0, 0, 0) and tuple(gi[0, 0]) == (255, 255, 255)
     f = np.array([[0.0, 0.5, 1.0, -1.0]])
-    assert R.gray_rgb(f)[0, :, 0].tolist() == [0, 128, 255, 0]
+    assert gray_rgb(f)[0, :, 0].tolist() == [0, 128, 255, 0]
     img3 = np.zeros((2, 2, 3), np.float32)
     img3[0, 0] = (1.0, 0.0, 0.5)
-    rgb = R.three_channel_rgb(img3)
+    rgb = three_channel_rgb(img3)
     assert rgb.dtype == np.uint8 and tuple(rgb[0, 0]) == (255, 0, 128) and rgb[1].max() == 0
 
 
@@ -432,19 +439,19 @@ def test_registry_renders_every_representation():
 
 
 def test_chunked_accumulation_equals_one_pass(monkeypatch):
-    # Windows larger than R._CHUNK are accumulated piecewise; a tiny chunk must give identical frames.
+    # Windows larger than accumulate.CHUNK_EVENTS are accumulated piecewise; a tiny chunk must give identical frames.
     t0, t1 = 0, 10_000
     ev = rand_events(5_003, seed=12, t0=t0, t1=t1, width=30, height=20)
     ref = {
-        "counts": R.polarity_counts(ev, 30, 20), "spike": R.spike(ev, 30, 20),
-        "3ch": R.three_channel(ev, 30, 20, t0, t1), "voxel": R.voxel_grid(ev, 30, 20, t0, t1, 5),
-        "voxel1": R.voxel_grid(ev, 30, 20, t0, t1, 1), "ts": R.time_surface(ev, 30, 20, 8_000, 2_000),
+        "counts": polarity_counts(ev, 30, 20), "spike": spike(ev, 30, 20),
+        "3ch": three_channel(ev, 30, 20, t0, t1), "voxel": voxel_grid(ev, 30, 20, t0, t1, 5),
+        "voxel1": voxel_grid(ev, 30, 20, t0, t1, 1), "ts": time_surface(ev, 30, 20, 8_000, 2_000),
     }
-    monkeypatch.setattr(R, "_CHUNK", 97)
+    monkeypatch.setattr(accumulate, "CHUNK_EVENTS", 97)
     got = {
-        "counts": R.polarity_counts(ev, 30, 20), "spike": R.spike(ev, 30, 20),
-        "3ch": R.three_channel(ev, 30, 20, t0, t1), "voxel": R.voxel_grid(ev, 30, 20, t0, t1, 5),
-        "voxel1": R.voxel_grid(ev, 30, 20, t0, t1, 1), "ts": R.time_surface(ev, 30, 20, 8_000, 2_000),
+        "counts": polarity_counts(ev, 30, 20), "spike": spike(ev, 30, 20),
+        "3ch": three_channel(ev, 30, 20, t0, t1), "voxel": voxel_grid(ev, 30, 20, t0, t1, 5),
+        "voxel1": voxel_grid(ev, 30, 20, t0, t1, 1), "ts": time_surface(ev, 30, 20, 8_000, 2_000),
     }
     assert np.array_equal(got["counts"][0], ref["counts"][0]) and np.array_equal(got["counts"][1], ref["counts"][1])
     for k in ("spike", "3ch", "ts"):

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from evpose.core.data.geometry import rotation_angle
 from evpose.core.data.clock import ClockModel
+from evpose.core.data.geometry import rotation_angle
 from evpose.core.data.trajectory import Trajectory, TrajectoryError
 
 
