@@ -252,8 +252,6 @@ class AlignController(QtCore.QObject):
                          self._sync_done)
 
     def _sync_done(self, session, result) -> None:
-        from evpose.core.align.apply import apply_sync
-
         self.last_sync = result
         clock = session.scene.clock
         modal = getattr(self.window, "modal_dialogs", True)
@@ -261,7 +259,8 @@ class AlignController(QtCore.QObject):
                          has_objects=bool(session.object_names),
                          edges_default=True if modal else bool(self.window.auto_answer.get("sync_edges", False)))
         then_edges = False
-        if self._decide(dlg, "sync") and apply_sync(session.history, session.scene, result, "automatic clock sync"):
+        if self._decide(dlg, "sync") and result.reliable and result.offset_us is not None:
+            session.apply_clock_estimate(result.offset_us, result.skew_ppm, "automatic clock sync")
             self.window.statusBar().showMessage(
                 f"clock set to {result.offset_us / 1000:+.3f} ms (confidence {result.confidence:.2f}); Ctrl+Z undoes",
                 8000)
@@ -300,13 +299,11 @@ class AlignController(QtCore.QObject):
         return self._run("Clock from edges", fn, self._clock_done)
 
     def _clock_done(self, session, result) -> None:
-        from evpose.core.align.apply import apply_offset_result
-
         self.last_clock_refine = result
         clock = session.scene.clock
         dlg = ClockRefineDialog(self.window, result, int(clock.offset_us), float(clock.skew_ppm))
-        if self._decide(dlg, "edge_sync") and apply_offset_result(session.history, session.scene, result,
-                                                                  "clock from edges"):
+        if self._decide(dlg, "edge_sync") and result.accepted and result.offset_us is not None:
+            session.apply_clock_estimate(result.offset_us, result.skew_ppm, "clock from edges")
             self.window.statusBar().showMessage(
                 f"clock set to {result.offset_us / 1000:+.3f} ms from edges; Ctrl+Z undoes", 8000)
         dlg.deleteLater()
@@ -327,7 +324,7 @@ class AlignController(QtCore.QObject):
         self.last_refine = result
         dlg = RefineDialog(self.window, result)
         if self._decide(dlg, "refine") and result.accepted:
-            session.history.set(("object", result.object), np.asarray(result.dT_base), text=f"refine {result.object}")
+            session.apply_pose_estimate(result.object, result.dT_base, f"refine {result.object}")
             self.window.statusBar().showMessage(
                 f"{result.object}: moved {result.dt_mm:.2f} mm, {result.dR_deg:.2f}°; Ctrl+Z undoes", 8000)
         dlg.deleteLater()

@@ -7,7 +7,7 @@ second app): with no unsaved edits the app reloads silently and says so in the s
 unsaved edits it offers *Merge* (take the other program's edits under ours; a real conflict names
 the field and both values and offers keeping ours or theirs), *Reload* (discard ours) or *Later*
 (the next save merges). The change taken over is one labelled undo step (see
-:mod:`core.session`). Save goes through the same revision check.
+:mod:`evpose.core.session.model`). Save goes through the same revision check.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from evpose.app.workers import Job, progress_dialog
 from evpose.core.document.corrections import CorrectionsError, CorrectionsWarning
 from evpose.core.document.corrections_merge import CorrectionsConflict
 from evpose.core.errors import InputError
-from evpose.core.session import Session
+from evpose.core.session.model import Session
 
 
 class ExportDialog(QtWidgets.QDialog):

@@ -5,7 +5,7 @@ rename, which drops the watch on the old inode, so the watch is re-armed after e
 (the folder watch sees the rename and a file that appears later). A cheap poll (one ``stat`` every
 :data:`POLL_MS`) backs it up where inotify is unavailable (network file systems). Notifications are
 debounced into one :attr:`CorrectionsWatcher.changed` signal; the receiver decides whether the
-content really changed (:meth:`evpose.core.session.Session.check_disk` compares with what the app last
+content really changed (:meth:`evpose.core.session.model.Session.check_disk` compares with what the app last
 loaded or saved, so the app's own saves are ignored).
 """
 from __future__ import annotations

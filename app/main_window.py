@@ -13,7 +13,10 @@ from evpose.app.disk_watch import CorrectionsWatcher
 from evpose.app.settings import Settings
 from evpose.app.undo_bridge import UndoBridge
 from evpose.app.workers import LatestWorker
-from evpose.core.session import REPRESENTATION_NAMES, FrameComputer, FrameData, Session, SpaceTimeData
+from evpose.core.session.frames import FrameComputer, FrameData, SpaceTimeData
+from evpose.core.session.model import Session
+from evpose.core.session.view_state import REPRESENTATION_NAMES
+from evpose.core.signals import Change
 from evpose.widgets.correction_panel import CorrectionPanel
 from evpose.widgets.frame_view import FrameView
 from evpose.widgets.help_overlay import HelpOverlay
@@ -47,9 +50,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.frame: FrameData | None = None
         self._shown_serial = {"frame": 0, "spacetime": 0}
         self._submitted_serial = {"frame": 0, "spacetime": 0}
-        self._views: list[QtWidgets.QWidget] = []
         self._docks: list[QtWidgets.QDockWidget] = []
-        self._unsubscribe = None
+        self._session_connection = None
         self.undo_bridge: UndoBridge | None = None
         self.disk_watcher: CorrectionsWatcher | None = None
         self.setWindowTitle("evpose[*]")
@@ -240,7 +242,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self._default_dock_sizes()
             QtCore.QTimer.singleShot(0, self._default_dock_sizes)   # again once laid out
         self.undo_bridge = UndoBridge(session.history, self.actions_by_name["undo"], self.actions_by_name["redo"], self)
-        self._unsubscribe = session.subscribe(self._on_session)
+        self._session_connection = session.changed.connect(self._on_session)
         # another program saving corrections.json (CLI --apply, a second app) is noticed and offered
         self.disk_watcher = CorrectionsWatcher(session.scene.corrections_path, self)
         self.disk_watcher.changed.connect(self.controller.on_disk_change)
@@ -276,9 +278,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.settings.save_window(self)
         self.align.cancel_all()
         self._spacetime_timer.stop()
-        if self._unsubscribe:
-            self._unsubscribe()
-            self._unsubscribe = None
+        if self._session_connection is not None:
+            self._session_connection.disconnect()
+            self._session_connection = None
         if self.undo_bridge:
             self.undo_bridge.detach()
             self.undo_bridge = None
@@ -315,11 +317,10 @@ class MainWindow(QtWidgets.QMainWindow):
             act.blockSignals(False)
         self.representation_actions[v.representation].setChecked(True)
 
-    def _on_session(self, what: str) -> None:
-        if what in ("time", "view", "document", "objects", "history"):
-            self.request_frame()
-            self._spacetime_timer.start()
-        if what == "view":
+    def _on_session(self, change: Change) -> None:
+        self.request_frame()                 # every kind of session change shows in the frame
+        self._spacetime_timer.start()
+        if change.kind == "view":
             self._sync_view_actions()
 
     # ------------------------------------------------------------------ frames

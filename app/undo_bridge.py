@@ -4,6 +4,7 @@ from __future__ import annotations
 from PySide6 import QtGui, QtWidgets
 
 from evpose.core.document.history import History
+from evpose.core.signals import Change
 
 
 class UndoBridge:
@@ -14,7 +15,10 @@ class UndoBridge:
         self.undo_action, self.redo_action, self.window = undo, redo, window
         undo.triggered.connect(history.undo)
         redo.triggered.connect(history.redo)
-        self._unsubscribe = history.subscribe(lambda h: self.sync())
+        self._connection = history.changed.connect(self._on_history)
+        self.sync()
+
+    def _on_history(self, change: Change) -> None:
         self.sync()
 
     def sync(self) -> None:
@@ -26,7 +30,7 @@ class UndoBridge:
         self.window.setWindowModified(not h.is_clean)
 
     def detach(self) -> None:
-        self._unsubscribe()
+        self._connection.disconnect()
         for a in (self.undo_action, self.redo_action):
             try:
                 a.triggered.disconnect()

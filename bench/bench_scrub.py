@@ -221,7 +221,7 @@ def compare_compute(session, positions) -> dict:
     import numpy as np
 
     from evpose.core.label import represent
-    from evpose.core.session import FrameComputer
+    from evpose.core.session.frames import FrameComputer
 
     cam = session.scene.camera
     reqs = frame_requests(session, positions)
@@ -252,7 +252,7 @@ def compare_compute(session, positions) -> dict:
 # ------------------------------------------------------------------------------------------------ part 2
 def measure_spacetime(qapp, window, n_events: int, repeats: int) -> dict:
 
-    from evpose.core.session import FrameComputer
+    from evpose.core.session.frames import FrameComputer
 
     session, view = window.session, window.spacetime
     tc, span = span_for(session, n_events)
@@ -307,7 +307,7 @@ def settle(qapp, window) -> None:
 
 # ------------------------------------------------------------------------------------------------ diagnosis
 STAGES = [  # (label, file path contains, function name contains): cumulative ms per frame of these calls
-    ("FrameComputer.frame (compute, total)", "core/session.py", "frame"),
+    ("FrameComputer.frame (compute, total)", "core/session/frames.py", "frame"),
     ("  EventStore.window (read)", "core/events.py", "window"),
     ("  represent.to_rgb (image)", "core/represent.py", "to_rgb"),
     ("  represent.polarity_counts", "core/represent.py", "polarity_counts"),
@@ -318,8 +318,8 @@ STAGES = [  # (label, file path contains, function name contains): cumulative ms
     ("  overlay.compose_masks_rgba", "core/overlay.py", "compose_masks_rgba"),
     ("  overlay.mask_contours", "core/overlay.py", "mask_contours"),
     ("  overlay.box_segments", "core/overlay.py", "box_segments"),
-    ("  session.inside_fraction", "core/session.py", "inside_fraction"),
-    ("  FrameComputer._scores", "core/session.py", "_scores"),
+    ("  session.inside_fraction", "core/session/frames.py", "inside_fraction"),
+    ("  FrameComputer._scores", "core/session/frames.py", "_scores"),
     ("FrameView.set_frame", "widgets/frame_view.py", "set_frame"),
     ("ObjectList.set_scores", "widgets/object_list.py", "set_scores"),
     ("event loop until painted (paint + flush)", "~", "exec' of 'PySide6.QtCore.QEventLoop"),
@@ -345,7 +345,7 @@ def profile_frames(qapp, window, positions) -> dict:
     set_scores and the event loop until the viewport has painted -- the scrub path without the thread."""
     from PySide6 import QtCore
 
-    from evpose.core.session import FrameComputer
+    from evpose.core.session.frames import FrameComputer
 
     session, fv = window.session, window.frame_view
     reqs = frame_requests(session, positions)
@@ -438,7 +438,7 @@ def main(argv=None) -> int:
 
     from evpose.app.main_window import MainWindow
     from evpose.app.settings import Settings
-    from evpose.core.session import Session
+    from evpose.core.session.model import Session
 
     ensure_scene()
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])

@@ -137,7 +137,8 @@ def main(argv=None) -> int:
     import numpy as np
     from PySide6 import QtWidgets
 
-    from evpose.core.session import FrameComputer, Session, SpaceTimeData
+    from evpose.core.session.frames import FrameComputer, SpaceTimeData
+    from evpose.core.session.model import Session
 
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
     from vispy import scene as vscene

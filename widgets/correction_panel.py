@@ -11,7 +11,9 @@ import numpy as np
 from PySide6 import QtCore, QtWidgets
 
 from evpose.core.document.pose_edit import FRAMES, delta_components
-from evpose.core.session import Session
+from evpose.core.session.model import Session
+from evpose.core.signals import Change
+from evpose.widgets.binding import connect_view
 
 OFFSET_LIMIT_US = 10_000_000
 TRANSLATION_STEPS_MM = (0.1, 0.5, 1.0, 2.0, 5.0, 10.0)
@@ -80,7 +82,7 @@ class CorrectionPanel(QtWidgets.QWidget):
         lay.addWidget(self._object_group())
         lay.addWidget(self._hand_eye_group())
         lay.addStretch(1)
-        session.subscribe(self._on_session)
+        connect_view(self, session.changed, self._on_session)
         self.refresh()
 
     # ------------------------------------------------------------------ construction
@@ -258,8 +260,8 @@ class CorrectionPanel(QtWidgets.QWidget):
             self.session.nudge_hand_eye(rot_deg=vec)
 
     # ------------------------------------------------------------------ model -> view
-    def _on_session(self, what: str) -> None:
-        if what in ("document", "history", "objects"):
+    def _on_session(self, change: Change) -> None:
+        if change.kind in ("document", "objects"):
             self.refresh()
 
     def refresh(self) -> None:

@@ -11,7 +11,8 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.label.overlay import AXIS_COLORS
-from evpose.core.session import FrameData, Session
+from evpose.core.session.frames import FrameData
+from evpose.core.session.model import Session
 from evpose.widgets.labels import Readout
 
 
@@ -34,7 +35,7 @@ def _segments_to_pairs(segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class FrameView(QtWidgets.QWidget):
-    """Shows :class:`~evpose.core.session.FrameData`; reports hover information.
+    """Shows :class:`~evpose.core.session.frames.FrameData`; reports hover information.
 
     Signals
     -------

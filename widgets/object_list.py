@@ -4,7 +4,9 @@ from __future__ import annotations
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from evpose.core.session import Session
+from evpose.core.session.model import Session
+from evpose.core.signals import Change
+from evpose.widgets.binding import connect_view
 
 COLUMNS = ("show", "", "object", "class", "corrected", "score")
 
@@ -42,7 +44,7 @@ class ObjectList(QtWidgets.QTableWidget):
             self.setItem(r, 5, QtWidgets.QTableWidgetItem("–"))
         self.itemChanged.connect(self._item_changed)
         self.itemSelectionChanged.connect(self._selection_changed)
-        session.subscribe(self._on_session)
+        connect_view(self, session.changed, self._on_session)
         self.refresh()
 
     def _item_changed(self, item: QtWidgets.QTableWidgetItem) -> None:
@@ -58,8 +60,8 @@ class ObjectList(QtWidgets.QTableWidget):
         if rows:
             self.session.select(self.session.object_names[min(rows)])
 
-    def _on_session(self, what: str) -> None:
-        if what in ("objects", "document", "history"):
+    def _on_session(self, change: Change) -> None:
+        if change.kind in ("objects", "document"):
             self.refresh()
 
     def set_scores(self, scores: dict[str, float | None]) -> None:

@@ -9,7 +9,9 @@ from __future__ import annotations
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.document.corrections import REVIEW_STATUSES
-from evpose.core.session import Session
+from evpose.core.session.model import Session
+from evpose.core.signals import Change
+from evpose.widgets.binding import connect_view
 
 STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
 STATUS_KEYS = {"verified": "V", "rejected": "R", "flagged": "F"}
@@ -68,7 +70,7 @@ class ReviewPanel(QtWidgets.QWidget):
         lay.addWidget(remove)
         self.status = QtWidgets.QLabel()
         lay.addWidget(self.status)
-        session.subscribe(self._on_session)
+        connect_view(self, session.changed, self._on_session)
         self.refresh()
 
     def _range_toggled(self, on: bool) -> None:
@@ -102,8 +104,8 @@ class ReviewPanel(QtWidgets.QWidget):
         if item is not None:
             self.session.remove_review(item.data(QtCore.Qt.UserRole))
 
-    def _on_session(self, what: str) -> None:
-        if what in ("reviews", "history", "document"):
+    def _on_session(self, change: Change) -> None:
+        if change.kind == "document":           # marks, or the clock / poses that make them stale
             self.refresh()
 
     def refresh(self) -> None:

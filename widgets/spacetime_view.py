@@ -4,9 +4,9 @@ projected silhouettes stacked along t as "tubes" (vispy, DESIGN sections 1-2).
 A clock offset between the event camera and the pose source shows here as a *shear*: the event
 sheets swept by a moving edge lean one way, the tubes built from the labelled poses another.
 
-The widget is a view of a :class:`evpose.core.session.Session`: it takes the session in its constructor,
+The widget is a view of a :class:`evpose.core.session.model.Session`: it takes the session in its constructor,
 subscribes to its changes (view options, object visibility) and draws the display-ready
-:class:`evpose.core.session.SpaceTimeData` that core computes (``FrameComputer.spacetime``). The owner
+:class:`evpose.core.session.frames.SpaceTimeData` that core computes (``FrameComputer.spacetime``). The owner
 (the app's controller or a test) computes that data, off the GUI thread if it likes, and hands it
 over with :meth:`SpaceTimeView.set_data`; the widget never imports ``app``.
 
@@ -39,6 +39,8 @@ import numpy as np
 import shiboken6
 from PySide6 import QtCore, QtWidgets
 
+from evpose.core.signals import Change
+from evpose.widgets.binding import connect_view
 from evpose.widgets.labels import Readout
 
 #: Event colours, as in the frame view (``core.represent``): ON red, OFF blue.
@@ -187,7 +189,7 @@ class SpaceTimeView(QtWidgets.QWidget):
 
     Parameters
     ----------
-    session : evpose.core.session.Session
+    session : evpose.core.session.model.Session
         The model. Read: ``view.spacetime_budget``, ``view.spacetime_span_us``, ``view.window_us``,
         ``view.hidden``, the camera size. Written (view state only): ``spacetime_budget`` and
         ``spacetime_span_us`` through ``set_view_option``.
@@ -346,9 +348,7 @@ class SpaceTimeView(QtWidgets.QWidget):
         self.canvas.events.mouse_release.connect(self._on_mouse_release)
         self.canvas.events.mouse_wheel.connect(self._on_mouse_wheel)
         self.canvas.events.resize.connect(self._on_canvas_resize)
-        unsubscribe = session.subscribe(self._on_session)
-        self._unsubscribe = unsubscribe
-        self.destroyed.connect(lambda *_: unsubscribe())   # no reference to self: safe after deletion
+        self._subscription = connect_view(self, session.changed, self._on_session)
 
     # ====================================================================== public API
     @property
@@ -367,7 +367,7 @@ class SpaceTimeView(QtWidgets.QWidget):
         return self._scale
 
     def set_data(self, data) -> None:
-        """Draw ``data`` (:class:`evpose.core.session.SpaceTimeData`): events coloured by polarity, tubes of the
+        """Draw ``data`` (:class:`evpose.core.session.frames.SpaceTimeData`): events coloured by polarity, tubes of the
         objects not hidden in the session, the current-window slab at t = 0 and the span's cage.
 
         More points than ``session.view.spacetime_budget`` are thinned by a stride before upload. The
@@ -478,7 +478,7 @@ class SpaceTimeView(QtWidgets.QWidget):
         self._closed = True
         self._lod_timer.stop()
         try:
-            self._unsubscribe()
+            self._subscription.disconnect()
         finally:
             if shiboken6.isValid(self.canvas.native):
                 self.canvas.close()
@@ -693,17 +693,17 @@ class SpaceTimeView(QtWidgets.QWidget):
                 spin.blockSignals(False)
 
     # ------------------------------------------------------------------ slots
-    def _on_session(self, what: str) -> None:
+    def _on_session(self, change: Change) -> None:
         if not self._alive():
             return
-        if what == "view":
+        if change.kind == "view":
             self._sync_from_view()
             self._update_slab(self.session.view.window_us)
             if self._data is not None and stride_for(len(self._data.points),
                                                      self.session.view.spacetime_budget) != self._stride:
                 self.set_data(self._data)     # the budget changed: re-thin what we have until new data comes
             self.canvas.update()
-        elif what == "objects":
+        elif change.kind == "objects":
             self._update_tubes()    # hide / show at once with the tubes at hand; new data follows
             self.canvas.update()
 

@@ -1,7 +1,7 @@
 """The whole sequence at a glance: event rate, robot speed, review marks, alignment scores; scrub and play.
 
 x is seconds since the first event on the **event clock** (``(t_us - t_ref_us) * 1e-6``). The robot speed
-comes from :func:`evpose.core.session.timeline_data`, which maps each bin through the clock in effect, so a wrong
+comes from :func:`evpose.core.session.timeline.timeline_data`, which maps each bin through the clock in effect, so a wrong
 time offset shows as a horizontal shift between the event-rate and speed curves; the speed is recomputed
 (debounced) when the document's clock changes.
 
@@ -23,7 +23,10 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from evpose.core.session import Session, TimelineData, timeline_data
+from evpose.core.session.model import Session
+from evpose.core.session.timeline import TimelineData, timeline_data
+from evpose.core.signals import Change
+from evpose.widgets.binding import connect_view
 from evpose.widgets.labels import Readout
 
 #: Review status colours (same as the review panel's).
@@ -98,7 +101,7 @@ def _curve(pen, name=None) -> pg.PlotDataItem:
 
 
 class Timeline(QtWidgets.QWidget):
-    """Timeline of a :class:`~evpose.core.session.Session`.
+    """Timeline of a :class:`~evpose.core.session.model.Session`.
 
     Signals
     -------
@@ -154,9 +157,7 @@ class Timeline(QtWidgets.QWidget):
         self._data_timer = QtCore.QTimer(self, singleShot=True, interval=15)
         self._data_timer.timeout.connect(self._refresh_if_clock_changed)
 
-        self._unsubscribe = session.subscribe(self._on_session)
-        unsubscribe = self._unsubscribe
-        self.destroyed.connect(lambda *_: unsubscribe())
+        connect_view(self, session.changed, self._on_session)
         self.refresh_data()
         self.fit()
         self._rebuild_marks()
@@ -386,7 +387,7 @@ class Timeline(QtWidgets.QWidget):
         self.set_data(data)
 
     def set_data(self, data: TimelineData) -> None:
-        """Display whole-sequence curves computed in core (see :func:`evpose.core.session.timeline_data`)."""
+        """Display whole-sequence curves computed in core (see :func:`evpose.core.session.timeline.timeline_data`)."""
         first = self.data is None
         self.data = data
         if len(data.t_s):
@@ -428,19 +429,18 @@ class Timeline(QtWidgets.QWidget):
             self.refresh_data()
 
     # ------------------------------------------------------------------ session changes
-    def _on_session(self, what: str) -> None:
-        if what in ("time", "view"):
+    def _on_session(self, change: Change) -> None:
+        if change.kind in ("time", "view"):
             self._update_time()
-        elif what == "document":
-            # debounced: a dragged offset slider sends many changes; recomputing takes ~30 ms per 10^6 bins
-            if not self._data_timer.isActive():
-                self._data_timer.setInterval(int(min(max(2 * self.data_compute_ms, 15), 250)))
-                self._data_timer.start()
-            if self._stale_key() != self._marks_stale_key:
-                self._rebuild_marks()      # a clock or pose change made marks stale (or fresh again)
-        elif what == "reviews":
-            self._rebuild_marks()
-        elif what == "objects":
+        elif change.kind == "document":
+            if change.fields - {"reviews"}:
+                # debounced: a dragged offset slider sends many changes; recomputing takes ~30 ms per 10^6 bins
+                if not self._data_timer.isActive():
+                    self._data_timer.setInterval(int(min(max(2 * self.data_compute_ms, 15), 250)))
+                    self._data_timer.start()
+            if "reviews" in change.fields or self._stale_key() != self._marks_stale_key:
+                self._rebuild_marks()      # new marks, or a clock or pose change made marks stale (or fresh)
+        elif change.kind == "objects":
             self._style_scores()
 
     def _update_time(self) -> None:

@@ -38,6 +38,7 @@ def _refine(scene, args, out: dict, lines: list[str]) -> bool:
     from evpose.core.align.clock_refine import refine_offset
     from evpose.core.align.pose_refine import refine_object
     from evpose.core.align.refine_result import RefineParams
+    from evpose.core.document.estimates import apply_pose_estimate
     from evpose.core.document.history import History
 
     names = object_names(scene, args)
@@ -62,7 +63,7 @@ def _refine(scene, args, out: dict, lines: list[str]) -> bool:
             out["objects"][n] = r.to_json()
             lines.append(object_line(n, r))
             if args.apply and r.accepted:
-                history.set(("object", n), r.dT_base)
+                apply_pose_estimate(history, n, r.dT_base, f"refine {n}")
                 changed = True
     return changed
 

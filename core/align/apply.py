@@ -2,12 +2,15 @@
 
 The estimates hold *total* clocks (prior + correction); the scene stores corrections on top of
 the manifest's prior. This module converts one into the other and applies an accepted estimate
-as one undo step, for the CLI's ``--apply``.
+as one undo step, for the CLI's ``--apply`` (the app goes through
+:meth:`evpose.core.session.model.Session.apply_clock_estimate`); both end in
+:mod:`evpose.core.document.estimates`, the one place that turns an estimate into corrections.
 """
 from __future__ import annotations
 
 from evpose.core.align.refine_result import RefineResult
 from evpose.core.align.sync_result import SyncResult
+from evpose.core.document.estimates import apply_clock_estimate, clock_correction_for
 
 __all__ = ["apply_offset_result", "apply_sync", "clock_correction"]
 
@@ -18,20 +21,14 @@ def clock_correction(scene, result: SyncResult) -> tuple[int, float] | None:
     correction is the current one when the skew was not estimated."""
     if result.offset_us is None:
         return None
-    off = int(result.offset_us) - int(scene.manifest.clock_offset_us)
-    skew = (float(result.skew_ppm) - float(scene.manifest.clock_skew_ppm)) if result.skew_ppm is not None \
-        else float(scene.corrections.skew_ppm)
-    return off, skew
+    return clock_correction_for(scene, result.offset_us, result.skew_ppm)
 
 
 def apply_sync(history, scene, result: SyncResult, text: str = "clock sync") -> bool:
     """Apply a reliable result through ``history`` as one undo step; returns whether applied."""
-    corr = clock_correction(scene, result)
-    if corr is None or not result.reliable:
+    if result.offset_us is None or not result.reliable:
         return False
-    with history.group(text):
-        history.set(("offset_us",), corr[0])
-        history.set(("skew_ppm",), corr[1])
+    apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
     return True
 
 
@@ -40,8 +37,5 @@ def apply_offset_result(history, scene, result: RefineResult, text: str = "clock
     ``history``, as one undo step; returns whether applied."""
     if result.kind != "offset" or not result.accepted or result.offset_us is None:
         return False
-    skew = scene.clock.skew_ppm if result.skew_ppm is None else float(result.skew_ppm)
-    with history.group(text):
-        history.set(("offset_us",), int(result.offset_us) - int(scene.manifest.clock_offset_us))
-        history.set(("skew_ppm",), skew - float(scene.manifest.clock_skew_ppm))
+    apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
     return True

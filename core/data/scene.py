@@ -95,7 +95,7 @@ class Scene:
         Returns one dict per hole: ``t0_pose_us``/``t1_pose_us`` (the samples around the hole, pose
         clock), ``t0_us``/``t1_us`` (the same on the event clock under ``clock``), ``gap_ms``, and
         ``n_windows``: how many windows of the recording's tiling with ``window_us`` windows
-        (labels at the centre, :func:`evpose.core.label.annotate.time_windows`) have their label time in the
+        (labels at the centre, :func:`evpose.core.label.windows.time_windows`) have their label time in the
         hole, so get no label.
         """
         traj = self.trajectory

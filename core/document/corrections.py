@@ -45,7 +45,7 @@ from evpose.core.document.review import (
 from evpose.core.errors import InputError
 
 __all__ = ["CORRECTIONS_FORMAT", "CORRECTIONS_FILENAME", "REVIEW_STATUSES", "Corrections", "CorrectionsError",
-           "CorrectionsWarning", "ReviewMark", "MarkState"]
+           "CorrectionsWarning", "ReviewMark", "MarkState", "change_field"]
 
 CORRECTIONS_FORMAT = "evpose-corrections/1"
 CORRECTIONS_FILENAME = "corrections.json"
@@ -69,11 +69,11 @@ class CorrectionsWarning(UserWarning):
 
 @dataclass(eq=False)
 class Corrections:
-    """Mutable correction document with change notification.
+    """Mutable correction document.
 
-    Mutate only through the ``set_*``/``*_review`` methods (normally via :mod:`core.history`
-    commands) so listeners are told what changed: ``"clock"``, ``"object:<name>"``,
-    ``"hand_eye"`` or ``"reviews"``.
+    Mutate it through :meth:`set` (by :mod:`evpose.core.document.history` commands in the app: the
+    history is the one change notification, one per step, naming the fields of
+    :func:`change_field`).
 
     Attributes
     ----------
@@ -93,23 +93,12 @@ class Corrections:
     revision: int = 0
 
     def __post_init__(self):
-        self._listeners: list[Callable[[str], None]] = []
         self.reviews = normalize_marks(self.reviews)
         self.base: dict | None = None
         #: ``(st_dev, st_ino, st_mtime_ns, st_size)`` of the file after our last load or save.
         self.disk_signature: tuple | None = None
         #: :class:`evpose.core.document.corrections_file.SaveReport` of the last :meth:`save` (None before).
         self.last_save = None
-
-    # ------------------------------------------------------------------ observation
-    def subscribe(self, callback: Callable[[str], None]) -> Callable[[], None]:
-        """Call ``callback(what)`` after every change; returns an unsubscribe function."""
-        self._listeners.append(callback)
-        return lambda: self._listeners.remove(callback) if callback in self._listeners else None
-
-    def _changed(self, what: str) -> None:
-        for cb in list(self._listeners):
-            cb(what)
 
     # ------------------------------------------------------------------ accessors
     def object_delta(self, name: str) -> np.ndarray:
@@ -139,27 +128,22 @@ class Corrections:
         raise KeyError(key)
 
     def set(self, key: tuple, value) -> None:
-        """Set the value at a command key (see :meth:`get`) and notify listeners."""
+        """Set the value at a command key (see :meth:`get`)."""
         kind = key[0]
         if kind == "offset_us":
             self.offset_us = _as_int_us(value, "offset_us")
-            self._changed("clock")
         elif kind == "skew_ppm":
             self.skew_ppm = _as_skew(value)
-            self._changed("clock")
         elif kind == "object":
             T = np.array(value, dtype=np.float64)
             if np.array_equal(T, np.eye(4)):
                 self.object_deltas.pop(key[1], None)
             else:
                 self.object_deltas[key[1]] = T
-            self._changed(f"object:{key[1]}")
         elif kind == "hand_eye":
             self.hand_eye_delta = np.array(value, dtype=np.float64)
-            self._changed("hand_eye")
         elif kind == "reviews":
             self.reviews = normalize_marks(value)
-            self._changed("reviews")
         else:
             raise KeyError(key)
 
@@ -181,12 +165,8 @@ class Corrections:
         """Effective review status at ``t_us`` for ``obj`` (see :func:`evpose.core.document.review.effective_status`)."""
         return effective_status(self.reviews, t_us, obj)
 
-    def is_identity(self) -> bool:
-        return (self.offset_us == 0 and self.skew_ppm == 0.0 and not self.object_deltas
-                and np.array_equal(self.hand_eye_delta, np.eye(4)) and not self.reviews)
-
     def copy(self) -> "Corrections":
-        """An independent copy of the values (no listeners, no disk state)."""
+        """An independent copy of the values (no disk state)."""
         return Corrections.from_json(self.to_json())
 
     # ------------------------------------------------------------------ JSON
@@ -312,6 +292,19 @@ class Corrections:
                 warnings.warn(f"{path}: {fld}: no object named {name!r} in the scene; kept in the file but "
                               "not applied", CorrectionsWarning, stacklevel=2)
         return doc
+
+
+def change_field(key: tuple) -> str:
+    """The field a command key sets, as change notifications name it: ``"clock"`` (offset and
+    skew), ``"hand_eye"``, ``"reviews"`` or ``"object:<name>"``."""
+    kind = key[0]
+    if kind in ("offset_us", "skew_ppm"):
+        return "clock"
+    if kind == "object":
+        return f"object:{key[1]}"
+    if kind in ("hand_eye", "reviews"):
+        return kind
+    raise KeyError(key)
 
 
 def _as_int_us(value, name: str) -> int:

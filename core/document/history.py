@@ -1,10 +1,17 @@
 """Undo/redo of edits to a :class:`~evpose.core.document.corrections.Corrections` document (pure Python).
 
-Every edit is a :class:`Command` carrying its old and new values. :class:`History` runs
+Every edit is a :class:`~evpose.core.document.commands.Command` carrying its old and new values. :class:`History` runs
 commands, merges repeated nudges of the same field into one step (as ``QUndoStack`` does with
 ``mergeWith``), groups several commands into one step, and tracks a clean index (the state
 last saved). GUI frontends mirror it onto their Undo/Redo actions; they never mutate the
 document directly.
+
+:attr:`History.changed` is the document's one change notification: it emits one
+:class:`~evpose.core.signals.Change` per step, after the step ran -- ``Change("document", fields)``
+for a push, merge, group, undo, redo or external change (``fields``: the document fields the step
+set, see :func:`~evpose.core.document.corrections.change_field`), ``Change("history")`` when only
+the clean state or the stack changed (:meth:`History.set_clean`, :meth:`History.clear`). Nothing
+is emitted for a no-op, inside a group, or for a group rolled back by an exception.
 """
 from __future__ import annotations
 
@@ -12,90 +19,9 @@ import contextlib
 import time
 from typing import Callable
 
-import numpy as np
-
-from evpose.core.document.corrections import Corrections
-
-
-def _same(a, b) -> bool:
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return np.array_equal(np.asarray(a), np.asarray(b))
-    return a == b
-
-
-class Command:
-    """One undoable edit. Subclasses implement :meth:`redo` and :meth:`undo`."""
-
-    text = "edit"
-    #: Commands with equal, non-None keys may merge into one undo step.
-    merge_key = None
-
-    def redo(self, doc: Corrections) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def undo(self, doc: Corrections) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def merge(self, other: "Command") -> bool:
-        """Absorb ``other`` (pushed right after self); return True if merged."""
-        return False
-
-    def is_noop(self) -> bool:
-        return False
-
-
-class SetValue(Command):
-    """Set the document value at ``key`` (see :meth:`Corrections.get`) from ``old`` to ``new``.
-
-    ``mergeable`` commands with the same key merge: the result keeps the first ``old`` and the
-    last ``new``, so a burst of keyboard nudges or a slider drag is one undo step.
-    """
-
-    def __init__(self, key: tuple, old, new, text: str | None = None, mergeable: bool = False):
-        self.key = tuple(key)
-        self.old = old
-        self.new = new
-        self.text = text or f"set {'/'.join(str(k) for k in self.key)}"
-        self.merge_key = self.key if mergeable else None
-
-    def redo(self, doc: Corrections) -> None:
-        doc.set(self.key, self.new)
-
-    def undo(self, doc: Corrections) -> None:
-        doc.set(self.key, self.old)
-
-    def merge(self, other: Command) -> bool:
-        if not isinstance(other, SetValue) or other.merge_key is None or other.merge_key != self.merge_key:
-            return False
-        self.new = other.new
-        return True
-
-    def is_noop(self) -> bool:
-        return _same(self.old, self.new)
-
-
-class Group(Command):
-    """Several commands as one undo step (redo in order, undo in reverse)."""
-
-    def __init__(self, text: str, commands: list[Command] | None = None):
-        self.text = text
-        self.commands: list[Command] = list(commands or [])
-
-    def redo(self, doc: Corrections) -> None:
-        for c in self.commands:
-            c.redo(doc)
-
-    def undo(self, doc: Corrections) -> None:
-        for c in reversed(self.commands):
-            c.undo(doc)
-
-    def is_noop(self) -> bool:
-        return all(c.is_noop() for c in self.commands)
-
-
-def set_command(doc: Corrections, key: tuple, new, text: str | None = None, mergeable: bool = False) -> SetValue:
-    """A :class:`SetValue` whose ``old`` is the document's current value at ``key``."""
-    return SetValue(key, doc.get(key), new, text=text, mergeable=mergeable)
+from evpose.core.document.commands import Command, Group, set_command
+from evpose.core.document.corrections import Corrections, change_field
+from evpose.core.signals import Change, Signal
 
 
 class History:
@@ -125,18 +51,15 @@ class History:
         self._last_push_t = -float("inf")
         self._merge_open = False
         self._group: Group | None = None
-        self._group_depth = 0
-        self._listeners: list[Callable[["History"], None]] = []
+        #: One :class:`~evpose.core.signals.Change` per step (see the module docstring).
+        self.changed: Signal[Change] = Signal(Change)
 
-    # ------------------------------------------------------------------ observation
-    def subscribe(self, callback: Callable[["History"], None]) -> Callable[[], None]:
-        """Call ``callback(history)`` after push/undo/redo/clean changes."""
-        self._listeners.append(callback)
-        return lambda: self._listeners.remove(callback) if callback in self._listeners else None
-
-    def _notify(self) -> None:
-        for cb in list(self._listeners):
-            cb(self)
+    def _notify(self, cmd: Command | None = None) -> None:
+        """Emit the change of one step: the fields ``cmd`` set, or only the history state."""
+        if cmd is None:
+            self.changed.emit(Change("history"))
+        else:
+            self.changed.emit(Change("document", frozenset(change_field(k) for k in cmd.keys())))
 
     # ------------------------------------------------------------------ state
     @property
@@ -167,10 +90,12 @@ class History:
         return self._clean == self._index
 
     def set_clean(self) -> None:
-        """Mark the current state as saved."""
+        """Mark the current state as saved (emits only if the clean state moved)."""
+        was = self._clean
         self._clean = self._index
         self._merge_open = False
-        self._notify()
+        if was != self._clean:
+            self._notify()
 
     def break_merge(self) -> None:
         """The next mergeable command starts a new undo step."""
@@ -185,7 +110,9 @@ class History:
             return
         self._record(cmd)
 
-    def _record(self, cmd: Command) -> None:
+    def _record(self, cmd: Command, notify: bool = True) -> None:
+        """Record ``cmd`` (already run) as a step, or merge it into the top one; emits one change
+        when the document changed (unless ``notify`` is False: the caller emits)."""
         now = self._clock()
         top = self._stack[self._index - 1] if self._index > 0 else None
         can_merge = (top is not None and self._merge_open and self._index == len(self._stack)
@@ -197,7 +124,8 @@ class History:
                 self._stack.pop()
                 self._index -= 1
                 self._merge_open = False
-            self._notify()
+            if notify:
+                self._notify(cmd)
             return
         if cmd.is_noop():  # nothing changed: no undo step
             return
@@ -213,7 +141,8 @@ class History:
             self._index -= drop
             if self._clean is not None:
                 self._clean = self._clean - drop if self._clean >= drop else None
-        self._notify()
+        if notify:
+            self._notify(cmd)
 
     def push_external(self, cmd: Command, clean: bool) -> None:
         """Run and record an edit that another program made to the file (taken over on reload,
@@ -225,11 +154,15 @@ class History:
         if self._group is not None:
             raise RuntimeError("an external change cannot be recorded inside a group")
         self._merge_open = False
+        was_clean = self._clean
         cmd.redo(self.doc)
-        self._record(cmd)
+        self._record(cmd, notify=False)
         self._merge_open = False
         self._clean = self._index if clean else None
-        self._notify()
+        if not cmd.is_noop():
+            self._notify(cmd)
+        elif self._clean != was_clean:
+            self._notify()
 
     def set(self, key: tuple, new, text: str | None = None, mergeable: bool = False) -> None:
         """Shorthand: push a :class:`SetValue` from the current value to ``new`` (no-op if equal)."""
@@ -245,18 +178,13 @@ class History:
         outer = self._group is None
         if outer:
             self._group = Group(text)
-        self._group_depth += 1
         try:
             yield
         except BaseException:
             if outer:
                 grp, self._group = self._group, None
                 grp.undo(self.doc)
-                self._group_depth = 0
-            else:
-                self._group_depth -= 1
             raise
-        self._group_depth -= 1
         if outer:
             grp, self._group = self._group, None
             if grp.commands:
@@ -269,7 +197,7 @@ class History:
         self._index -= 1
         self._stack[self._index].undo(self.doc)
         self._merge_open = False
-        self._notify()
+        self._notify(self._stack[self._index])
         return True
 
     def redo(self) -> bool:
@@ -278,7 +206,7 @@ class History:
         self._stack[self._index].redo(self.doc)
         self._index += 1
         self._merge_open = False
-        self._notify()
+        self._notify(self._stack[self._index - 1])
         return True
 
     def clear(self) -> None:

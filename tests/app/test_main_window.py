@@ -20,7 +20,7 @@ def test_fix_offset_through_the_panel(qtbot, window, scene_copy):
     s = window.controller.open_scene(scene_copy)
     assert s is not None and window.windowTitle().startswith("evpose — ")
     # the fastest windows (a clock offset matters most there): share of events on the dilated masks
-    from evpose.core.session import timeline_data
+    from evpose.core.session.timeline import timeline_data
 
     td = timeline_data(s.scene, bin_us=10_000)
     fastest = np.argsort(np.where(td.speed_valid, td.speed_mps, 0))[-6:]

@@ -5,7 +5,9 @@ import pytest
 
 from evpose.core.data.geometry import apply_T, inv_T
 from evpose.core.data.scene import Scene
-from evpose.core.label.annotate import Annotator, Request, count_windows, label_time, mask_bbox, time_windows
+from evpose.core.label.annotate import Annotator
+from evpose.core.label.labels import Request, mask_bbox
+from evpose.core.label.windows import count_windows, label_time, time_windows
 from evpose.core.sim.synth import load_ground_truth
 
 

@@ -5,7 +5,9 @@ import pytest
 
 from evpose.core.data.geometry import T_from_rotvec
 from evpose.core.document.corrections import Corrections, CorrectionsError, ReviewMark
-from evpose.core.document.history import Group, History, SetValue
+from evpose.core.document.commands import Group, SetValue
+from evpose.core.document.history import History
+from evpose.core.signals import Change
 
 
 class FakeClock:
@@ -72,8 +74,8 @@ def test_invalid_files_name_the_field(tmp_path, payload, match):
 def test_undo_redo_and_listeners():
     c = Corrections()
     seen = []
-    c.subscribe(seen.append)
     h = History(c)
+    h.changed.connect(seen.append)
     h.set(("offset_us",), 1000)
     h.set(("skew_ppm",), 2.5)
     assert (c.offset_us, c.skew_ppm) == (1000, 2.5)
@@ -81,7 +83,7 @@ def test_undo_redo_and_listeners():
     assert h.undo() and c.offset_us == 0
     assert not h.undo()
     assert h.redo() and c.offset_us == 1000
-    assert seen == ["clock"] * 5
+    assert seen == [Change("document", frozenset({"clock"}))] * 5
     h.set(("offset_us",), 1000)  # no-op: no step, and the redo branch survives
     assert h.index == 1 and h.can_redo and len(h) == 2
 

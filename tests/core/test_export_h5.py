@@ -11,7 +11,9 @@ import pytest
 from evpose.core.data.events import Cancelled
 from evpose.core.data.scene import Scene
 from evpose.core.export import export_scene
-from evpose.core.label.annotate import Annotator, Request, time_windows
+from evpose.core.label.annotate import Annotator
+from evpose.core.label.labels import Request
+from evpose.core.label.windows import time_windows
 from evpose.core.label.event_frames.counts import polarity_counts
 
 DATASETS = ("windows", "T_cam_obj", "T_base_cam", "bbox_obj", "bbox_visib", "keypoints_uv", "corners_cam",

@@ -17,7 +17,7 @@ from evpose.core.export.common import (
     verified_mask,
 )
 from evpose.core.label.annotate import Window
-from evpose.core.session import Session
+from evpose.core.session.model import Session
 
 
 # ---------------------------------------------------------------------------- the mark algebra

@@ -141,7 +141,7 @@ def test_object_out_of_view_is_masked_not_zero(tiny):
 
 
 def scene_windows(scene):
-    from evpose.core.label.annotate import time_windows
+    from evpose.core.label.windows import time_windows
 
     return time_windows(scene.events, 10_000)
 

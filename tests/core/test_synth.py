@@ -9,7 +9,9 @@ from evpose.core.data.events import Cancelled
 from evpose.core.data.geometry import pose_error, rotation_angle
 from evpose.core.data.scene import Scene
 from evpose.core.data.clock import ClockModel
-from evpose.core.label.annotate import Annotator, Request, time_windows
+from evpose.core.label.annotate import Annotator
+from evpose.core.label.labels import Request
+from evpose.core.label.windows import time_windows
 from evpose.core.sim.synth import (
     NOISE_STEP_US,
     SynthConfig,

@@ -18,7 +18,7 @@ def _need_display():
 
 @pytest.fixture
 def session(scene_copy):
-    from evpose.core.session import Session
+    from evpose.core.session.model import Session
 
     s = Session.open(scene_copy)
     s.set_time(s.time_range[0] + 300_000)

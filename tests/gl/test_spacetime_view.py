@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from evpose.core.session import FrameComputer, SpaceTimeData
+from evpose.core.session.frames import FrameComputer, SpaceTimeData
 
 W_CANVAS, H_CANVAS = 640, 480
 
@@ -223,14 +223,14 @@ def test_presets_and_reset_render(qtbot, view, session):
 def test_close_unsubscribes(qtbot, session):
     from evpose.widgets.spacetime_view import SpaceTimeView
 
-    n0 = len(session._listeners)
+    n0 = len(session.changed)
     w = SpaceTimeView(session)
     qtbot.addWidget(w)
     w.show()
     qtbot.waitExposed(w)
-    assert len(session._listeners) == n0 + 1
+    assert len(session.changed) == n0 + 1
     w.close()
-    assert len(session._listeners) == n0
+    assert len(session.changed) == n0
     session.set_view_option(spacetime_budget=50_000)     # no callback into the closed view
 
 
@@ -286,7 +286,7 @@ def test_deleted_with_its_parent_ignores_late_data(qtbot, session):
 
     from evpose.widgets.spacetime_view import SpaceTimeView
 
-    n0 = len(session._listeners)
+    n0 = len(session.changed)
     parent = QtWidgets.QWidget()
     lay = QtWidgets.QVBoxLayout(parent)
     w = SpaceTimeView(session)
@@ -295,6 +295,6 @@ def test_deleted_with_its_parent_ignores_late_data(qtbot, session):
     qtbot.waitExposed(parent)
     w.set_data(sheet(session, 1, n=1000))
     parent.deleteLater()
-    qtbot.waitUntil(lambda: len(session._listeners) == n0, timeout=5000)
+    qtbot.waitUntil(lambda: len(session.changed) == n0, timeout=5000)
     w.set_data(sheet(session, 0, n=1000))          # no exception
     session.set_view_option(spacetime_budget=60_000)

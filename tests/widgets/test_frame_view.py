@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from evpose.core.session import FrameComputer
+from evpose.core.session.frames import FrameComputer
 from evpose.widgets.frame_view import FrameView
 
 

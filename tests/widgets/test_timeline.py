@@ -6,7 +6,7 @@ import pyqtgraph as pg
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from evpose.core.session import TimelineData
+from evpose.core.session.timeline import TimelineData
 from evpose.widgets.timeline import SCRUB_INTERVAL_MS, STATUS_COLORS, Timeline
 
 LEFT = QtCore.Qt.LeftButton
@@ -156,7 +156,7 @@ def test_click_on_the_plot_scrubs(tl, session, qtbot):
 def test_drag_scrubs_throttled(tl, session, qtbot):
     t0 = session.time_range[0]
     updates = []
-    session.subscribe(lambda what: what == "time" and updates.append(session.view.t_us))
+    session.changed.connect(lambda change: change.kind == "time" and updates.append(session.view.t_us))
     xs = np.linspace(0.1, 0.7, 150)
     start = time.monotonic()
     drag(qtbot, tl.glw.viewport(), [lambda x=x: viewport_pos(tl, tl.vb, x) for x in xs])
@@ -219,7 +219,7 @@ def test_play_in_real_time_stops_at_the_end(tl, session, qtbot):
     t0, t1 = session.time_range
     session.set_time(t1 - 150_000)
     seen = []
-    session.subscribe(lambda what: what == "time" and seen.append(session.view.t_us))
+    session.changed.connect(lambda change: change.kind == "time" and seen.append(session.view.t_us))
     tl.set_speed(1.0)
     start = time.monotonic()
     with qtbot.waitSignal(tl.playingChanged, timeout=500):
