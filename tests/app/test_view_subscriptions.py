@@ -1,0 +1,74 @@
+"""Every view of a session disconnects when it is replaced or closed: the old session calls no
+deleted view, holds none of them, and one edit reaches each live view exactly once."""
+import gc
+import weakref
+
+import pytest
+from PySide6 import QtCore
+
+VIEWS = ("panel", "objects", "reviews", "timeline", "spacetime")
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """``(view class, change)`` of every call of a view's session slot (patched on the classes)."""
+    from evpose.app.main_window import MainWindow
+    from evpose.widgets.correction_panel import CorrectionPanel
+    from evpose.widgets.object_list import ObjectList
+    from evpose.widgets.review_panel import ReviewPanel
+    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.timeline import Timeline
+
+    seen = []
+    for cls in (CorrectionPanel, ObjectList, ReviewPanel, SpaceTimeView, Timeline, MainWindow):
+        original = cls._on_session
+
+        def spy(self, change, _original=original, _name=cls.__name__):
+            seen.append((_name, change))
+            return _original(self, change)
+
+        monkeypatch.setattr(cls, "_on_session", spy)
+    return seen
+
+
+def deleted_and_collected(qtbot) -> None:
+    for _ in range(3):
+        QtCore.QCoreApplication.sendPostedEvents(None, QtCore.QEvent.DeferredDelete)
+        qtbot.wait(20)
+    gc.collect()
+
+
+def test_one_edit_reaches_each_view_once(qtbot, window, scene_copy, calls):
+    s = window.controller.open_scene(scene_copy)
+    assert len(s.changed) == len(VIEWS) + 1                 # the five views and the window
+    assert len(s.history.changed) == 2                      # the session and the undo bridge
+    calls.clear()
+    s.set_offset_correction_us(1234)
+    names = sorted(name for name, _ in calls)
+    assert names == sorted(["CorrectionPanel", "ObjectList", "ReviewPanel", "SpaceTimeView", "Timeline",
+                            "MainWindow"])
+    calls.clear()
+    s.set_time(s.time_range[0] + 200_000)
+    assert len(calls) == len(VIEWS) + 1
+
+
+@pytest.mark.parametrize("how", ["replaced", "closed"])
+def test_old_views_are_disconnected_not_called_and_freed(qtbot, window, scene_copy, calls, how):
+    old = window.controller.open_scene(scene_copy)
+    refs = {name: weakref.ref(getattr(window, name)) for name in VIEWS}
+    refs["undo_bridge"] = weakref.ref(window.undo_bridge)
+    if how == "replaced":
+        new = window.controller.open_scene(scene_copy)
+        assert new is not old and len(new.changed) == len(VIEWS) + 1
+    else:
+        window.close()
+    deleted_and_collected(qtbot)
+    assert len(old.changed) == 0                            # nobody listens to the old session
+    assert len(old.history.changed) == 1                    # only the old session itself
+    alive = [name for name, ref in refs.items() if ref() is not None]
+    assert alive == [], f"kept alive after the session was {how}: {alive}"
+    calls.clear()
+    old.set_view_option(spacetime_budget=12_345)            # the old session changes: no deleted view hears it
+    old.select(old.object_names[0])
+    old.set_offset_correction_us(999)
+    assert calls == []
