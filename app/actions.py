@@ -69,13 +69,6 @@ NUDGES = {f"{k}{a}_{s}": ("translate" if k == "t" else "rotate", "xyz".index(a),
           for k in "tr" for a in "xyz" for s in ("minus", "plus")}
 
 
-def by_name(name: str) -> Shortcut:
-    for s in SHORTCUTS:
-        if s.name == name:
-            return s
-    raise KeyError(name)
-
-
 def help_sections() -> list[tuple[str, list[tuple[str, str]]]]:
     """Rows for the help overlay, grouped by section in table order."""
     sections: dict[str, list[tuple[str, str]]] = {}

@@ -54,9 +54,11 @@ sys.path.insert(0, str(REPO))
 from evpose.core.data.camera import CameraModel  # noqa: E402
 from evpose.core.data.geometry import inv_T, pose_error  # noqa: E402
 from evpose.core.data.scene import Scene  # noqa: E402
-from evpose.core.data.trajectory import ClockModel, Trajectory  # noqa: E402
+from evpose.core.data.clock import ClockModel  # noqa: E402
+from evpose.core.data.trajectory import Trajectory  # noqa: E402
 from evpose.core.document.corrections import Corrections  # noqa: E402
-from evpose.core.sim.synth import SynthConfig, generate, load_ground_truth  # noqa: E402
+from evpose.core.sim.synth import generate, load_ground_truth  # noqa: E402
+from evpose.core.sim.synth_config import SynthConfig  # noqa: E402
 
 DATA = REPO / "bench" / ".data" / "accuracy"
 OUT = REPO / "bench" / "out"
@@ -133,8 +135,9 @@ def rate_level_scene(folder: Path, duration_s, offset_us, skew_ppm, seed, *, per
     """Events with a rate proportional to the camera's image speed (no rendering)."""
     from scipy.spatial.transform import Rotation
 
-    from evpose.core.data.events import EventArray, write_events_h5
-    from evpose.core.data.scene import SceneManifest
+    from evpose.core.data.event_writer import write_events_h5
+    from evpose.core.data.events import EventArray
+    from evpose.core.data.manifest import SceneManifest
 
     if (folder / "scene.toml").is_file():
         return folder

@@ -33,7 +33,8 @@ OUT = DATA / "export_out"
 
 
 def ensure_scene() -> Path:
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     if (SCENE / "scene.toml").is_file():
         return SCENE

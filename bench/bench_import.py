@@ -68,7 +68,7 @@ def _event_chunks(n_events, width, height, seed, chunk=1_000_000):
 def gen_bag(path: Path, n_events: int) -> None:
     from rosbags.rosbag1 import Writer
 
-    from evpose.core.importers.epose_bag import (
+    from evpose.core.importers.epose_bag_codec import (
         EVENT_ARRAY_TYPE,
         POSE_STAMPED_TYPE,
         dvs_typestore,
@@ -177,7 +177,7 @@ def child(task: str, arg: str, extra: str) -> dict:
     elif task == "rosbags-bag":
         from rosbags.rosbag1 import Reader
 
-        from evpose.core.importers.epose_bag import EVENT_ARRAY_TYPE, dvs_typestore
+        from evpose.core.importers.epose_bag_codec import EVENT_ARRAY_TYPE, dvs_typestore
 
         ts = dvs_typestore()
         n = n_msgs = 0

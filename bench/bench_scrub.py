@@ -28,7 +28,7 @@ split into
 Baseline (ratio, same run, same positions, GUI thread, interleaved): the naive compute path, a fresh
 ``FrameComputer`` per request (new ``Annotator`` + ``Rasterizer``: mesh/tile/distortion set-up and score
 parameters rebuilt every frame) against the app's cached one; plus, as a sub-step, event accumulation with
-``represent.polarity_counts`` (bincount) against ``np.add.at``.
+``polarity_counts`` (bincount) against ``np.add.at``.
 
 Part 2, space-time update for ~2 M events: ``spacetime_span_us`` is set so that the span around the middle
 of the recording holds ``--events`` events; timed (median of ``--repeats``, wall and process CPU, variants
@@ -80,7 +80,8 @@ from bench_spacetime import _reexec_under_xvfb, span_for  # noqa: E402  (shared 
 
 def ensure_scene() -> Path:
     """The cached 3-object DAVIS346 scene (config identical to bench_export.py's)."""
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     if (SCENE / "scene.toml").is_file():
         return SCENE
@@ -220,7 +221,7 @@ def compare_compute(session, positions) -> dict:
     (interleaved), and bincount vs np.add.at accumulation of the same windows."""
     import numpy as np
 
-    from evpose.core.label import represent
+    from evpose.core.label.event_frames.counts import polarity_counts
     from evpose.core.session.frames import FrameComputer
 
     cam = session.scene.camera
@@ -238,7 +239,7 @@ def compare_compute(session, positions) -> dict:
         w = r.view.window()
         ev = r.scene.events.window(w.t0_us, w.t1_us)
         t0 = time.perf_counter()
-        pos, neg = represent.polarity_counts(ev, cam.width, cam.height)
+        pos, neg = polarity_counts(ev, cam.width, cam.height)
         acc_ours.append((time.perf_counter() - t0) * 1e3)
         t0 = time.perf_counter()
         c = np.zeros((2, cam.height, cam.width), np.int64)
@@ -308,9 +309,9 @@ def settle(qapp, window) -> None:
 # ------------------------------------------------------------------------------------------------ diagnosis
 STAGES = [  # (label, file path contains, function name contains): cumulative ms per frame of these calls
     ("FrameComputer.frame (compute, total)", "core/session/frames.py", "frame"),
-    ("  EventStore.window (read)", "core/events.py", "window"),
-    ("  represent.to_rgb (image)", "core/represent.py", "to_rgb"),
-    ("  represent.polarity_counts", "core/represent.py", "polarity_counts"),
+    ("  EventStore.window (read)", "core/data/event_store.py", "window"),
+    ("  represent.to_rgb (image)", "core/label/represent.py", "to_rgb"),
+    ("  polarity_counts", "core/label/event_frames/counts.py", "polarity_counts"),
     ("  Annotator.annotate (labels)", "core/annotate.py", "annotate"),
     ("    Annotator.poses", "core/annotate.py", "poses"),
     ("    Rasterizer.render_objects", "core/raster.py", "render_objects"),

@@ -91,7 +91,8 @@ def ensure_scene(n_events: int):
     """The cached synthetic scene, (re)generated when missing or too short for ``n_events``."""
     sys.path.insert(0, str(ROOT))
     from evpose.core.data.scene import Scene
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     if SCENE.exists():
         try:
@@ -195,7 +196,8 @@ def main(argv=None) -> int:
     if session is None:  # widget part on synthesised data of the right size
         import tempfile
 
-        from evpose.core.sim.synth import SynthConfig, generate
+        from evpose.core.sim.synth import generate
+        from evpose.core.sim.synth_config import SynthConfig
         from tests.conftest import TINY_SCENE, half_davis_camera
 
         tmp = Path(tempfile.mkdtemp()) / "tiny"

@@ -1,10 +1,10 @@
-"""How wrong is a pose interpolated across a gap? The measurement behind ``evpose.core.data.trajectory_holes.MAX_GAP_STEPS``.
+"""How wrong is a pose interpolated across a gap? The measurement behind ``trajectory_holes.MAX_GAP_STEPS``.
 
 Usage::
 
     python bench/trajectory_gaps.py
 
-Synthetic min-jerk moves (``evpose.core.sim.synth.make_motion``, trajectory B) at the E-POSE speeds, recorded at 250 Hz
+Synthetic min-jerk moves (``evpose.core.sim.motion.make_motion``, trajectory B) at the E-POSE speeds, recorded at 250 Hz
 like the synthetic scenes. For every gap position, the k-1 samples inside a gap of k sampling steps are dropped,
 the pose is interpolated (linear / slerp, as ``evpose.core.data.trajectory.Trajectory``) at 1 ms steps in the gap and
 compared with the true (4 kHz) motion. Prints the worst position (mm) and rotation (deg) error per speed and k.
@@ -20,7 +20,8 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from evpose.core.data.trajectory import Trajectory  # noqa: E402
-from evpose.core.sim.synth import SynthConfig, make_motion  # noqa: E402
+from evpose.core.sim.motion import make_motion  # noqa: E402
+from evpose.core.sim.synth_config import SynthConfig  # noqa: E402
 
 GAPS = (1, 2, 3, 4, 5, 10, 25, 50)
 

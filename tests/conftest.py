@@ -62,7 +62,8 @@ def models_dir() -> Path:
 @pytest.fixture(scope="session")
 def tiny_scene_dir(tmp_path_factory) -> Path:
     """Built once per test session; never modify it (use ``scene_copy``)."""
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     out = tmp_path_factory.mktemp("scenes") / "tiny"
     generate(out, SynthConfig(**TINY_SCENE, camera=half_davis_camera()))

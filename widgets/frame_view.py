@@ -199,6 +199,3 @@ class FrameView(QtWidgets.QWidget):
                     text += f" @ {info['depth_m'] * 1000:.1f} mm"
         self.info.setRightText(text)
         self.hoverText.emit(text)
-
-    def grab_image(self) -> QtGui.QImage:
-        return self.glw.grab().toImage()

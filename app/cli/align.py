@@ -18,7 +18,7 @@ __all__ = ["add_align_parsers", "cmd_sync", "cmd_refine", "cmd_score"]
 
 
 def check_score_args(args) -> None:
-    from evpose.core.label.annotate import MIN_WINDOW_MS
+    from evpose.core.label.windows import MIN_WINDOW_MS
 
     if not (math.isfinite(args.window_ms) and args.window_ms >= MIN_WINDOW_MS):
         raise CliError(f"--window-ms: must be at least {MIN_WINDOW_MS:g} ms (a finite number), got {args.window_ms:g}")

@@ -78,7 +78,7 @@ def summary_text(s) -> str:
 
 def window_us_from_args(args) -> int:
     """The window length in µs, after refusing nonsensical window, margin, jobs and object options."""
-    from evpose.core.label.annotate import MIN_WINDOW_MS
+    from evpose.core.label.windows import MIN_WINDOW_MS
 
     window_us = DEFAULT_WINDOW_US
     if args.window_ms is not None:

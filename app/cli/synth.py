@@ -15,7 +15,8 @@ __all__ = ["add_synth_parser", "cmd_synth", "default_demo_dir", "ensure_demo_sce
 @command("synth")
 def cmd_synth(args) -> int:
     from evpose.core.sim.evsim import SensorParams
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     cfg = SynthConfig(
         objects=tuple(s.strip() for s in args.objects.split(",") if s.strip()),
@@ -44,7 +45,8 @@ def default_demo_dir() -> Path:
 
 def ensure_demo_scene(out: Path, quiet: bool = False) -> Path:
     """Build the demo scene once (3 objects, injected clock offset and pose error)."""
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     if (out / "scene.toml").is_file() and (out / "ground_truth.json").is_file():
         return out

@@ -20,8 +20,8 @@ from evpose.core.align.edges import EdgeSetup, evaluate
 from evpose.core.align.event_windows import choose_windows, window_speeds_px_s
 from evpose.core.align.refine_result import RefineParams, RefineResult
 from evpose.core.align.scene_proxy import scene_motion_proxy
-from evpose.core.data.events import Cancelled
 from evpose.core.data.clock import ClockModel
+from evpose.core.data.events import Cancelled
 
 __all__ = ["MAX_OFFSET_WINDOW_US", "OFFSET_WINDOW_PX", "SKEW_EDGE_MAX_STD_PPM", "SKEW_EDGE_RANGE_PPM",
            "SKEW_EDGE_SIGMAS", "STD_GRID_STEPS", "offset_window_us", "refine_offset"]

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from evpose.core.data.trajectory import Trajectory
 
-__all__ = ["MotionProxy", "motion_proxy", "DEFAULT_DEPTH_M", "PROXY_SUB_US"]
+__all__ = ["DEFAULT_DEPTH_M", "PROXY_SUB_US", "MotionProxy", "motion_proxy"]
 
 DEFAULT_DEPTH_M = 0.5         # scene distance when no object gives one
 PROXY_SUB_US = 250.0          # the motion proxy is sampled at least this finely (a smooth curve, not a staircase)

@@ -14,8 +14,8 @@ import numpy as np
 from scipy import ndimage
 
 from evpose.core.align.proxy import MotionProxy
-from evpose.core.data.events import Cancelled
 from evpose.core.data.clock import ClockModel
+from evpose.core.data.events import Cancelled
 
 __all__ = ["RateSeries", "check_cancel"]
 
@@ -82,8 +82,7 @@ class RateSeries:
         self.counts = c
         m = np.ones(len(c), bool)
         e, ok = _gauss(c, m, sigma_bins)
-        self.e_tf = _Transform(transform, e[ok])
-        self.e = self.e_tf(e)
+        self.e = _Transform(transform, e[ok])(e)
         self.me = ok
         # float offsets of the bin starts relative to the trajectory origin and to t_ref
         self.d0 = (self.starts - np.int64(proxy.t0_us)).astype(np.float64)

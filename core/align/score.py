@@ -59,7 +59,7 @@ class ScoreParams:
     min_pixels: int = 16
     depth_edge_rel: float = 0.03
 
-    def resolved(self, camera) -> "ScoreParams":
+    def resolved(self, camera) -> ScoreParams:
         auto = max(4.0, 0.03 * max(camera.width, camera.height))
         near = self.near_px if self.near_px is not None else auto
         trunc = self.trunc_px if self.trunc_px is not None else near

@@ -97,7 +97,7 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
     Parameters
     ----------
     scene : evpose.core.data.scene.Scene
-    windows : list of evpose.core.label.annotate.Window or of (t0_us, t1_us), optional
+    windows : list of evpose.core.label.windows.Window or of (t0_us, t1_us), optional
         Label time is the window centre.
     objects : list of str, optional
         Default all.
@@ -111,7 +111,7 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000,
         ``cancel() -> bool``; True raises :class:`evpose.core.data.events.Cancelled`.
     """
     from evpose.core.data.geometry import inv_T
-    from evpose.core.label.annotate import time_windows
+    from evpose.core.label.windows import time_windows
 
     t_start = time.perf_counter()
     names = scene.object_names if objects is None else list(objects)

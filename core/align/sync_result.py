@@ -15,7 +15,7 @@ import numpy as np
 
 from evpose.core.data.clock import ClockModel
 
-__all__ = ["SegmentOffset", "SyncResult", "ClockEstimate", "unreliable", "SLOW_STD_NOTE_US"]
+__all__ = ["SLOW_STD_NOTE_US", "ClockEstimate", "SegmentOffset", "SyncResult", "unreliable"]
 
 SLOW_STD_NOTE_US = 1000.0     # offset standard error above this: a note says how loosely the rate pins it
 

@@ -21,7 +21,7 @@ Rules
   recorded it, or written by other tools) are never stale.
 * **Grid.** The app's current window is a cell of the export grid: windows of the view's length
   starting at the first event (:func:`grid_window`, the same tiling as
-  :func:`evpose.core.label.annotate.time_windows`), so a mark of the current window is an export window.
+  :func:`evpose.core.label.windows.time_windows`), so a mark of the current window is an export window.
 """
 from __future__ import annotations
 

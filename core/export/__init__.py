@@ -2,20 +2,31 @@
 
 Atomic per file, resumable, with ``progress(fraction, message)`` and ``cancel() -> bool`` callbacks;
 no knowledge of threads or GUI (the app calls :func:`export_scene` from a worker thread).
-See :mod:`evpose.core.export.common` for windows, resume and the process pool, and the writer modules for
-every file and encoding.
+One module per role:
+
+- formats: :mod:`~evpose.core.export.epose`, :mod:`~evpose.core.export.bop`, :mod:`~evpose.core.export.h5`
+  (each a :class:`~evpose.core.export.writer.FormatWriter`; file encodings in :mod:`~evpose.core.export.encode`);
+- the run: :mod:`~evpose.core.export.runner` (step by step), :mod:`~evpose.core.export.pool` (this process
+  or a process pool), :mod:`~evpose.core.export.worker` (per-process context);
+- what is exported: :mod:`~evpose.core.export.options`, :mod:`~evpose.core.export.windows` (tiling,
+  ``--only-verified``, unlabeled windows);
+- the output folder: :mod:`~evpose.core.export.out_folder` (lock, resume / refuse / replace),
+  :mod:`~evpose.core.export.fingerprint`, :mod:`~evpose.core.export.journal`;
+- what it did: :mod:`~evpose.core.export.summary`, :mod:`~evpose.core.export.manifest`.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from evpose.core.export.common import FORMATS, ExportError, ExportSummary, run_export
+from evpose.core.export.options import FORMATS, ExportError
+from evpose.core.export.runner import run_export
+from evpose.core.export.summary import ExportSummary
 
 __all__ = ["export_scene", "make_writer", "ExportSummary", "ExportError", "FORMATS"]
 
 
 def make_writer(fmt: str, format_options: dict | None = None):
-    """The :class:`~evpose.core.export.common.FormatWriter` of a format name, with its options."""
+    """The :class:`~evpose.core.export.writer.FormatWriter` of a format name, with its options."""
     opts = dict(format_options or {})
     if fmt == "epose":
         from evpose.core.export.epose import EposeWriter
@@ -60,7 +71,7 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
     only_verified : bool
         Export only windows whose every instant is effectively ``verified`` for every exported object
         by a mark that is not stale; partly covered windows are left out (see
-        :func:`evpose.core.export.common.review_usage`). The summary counts the windows verified marks
+        :func:`evpose.core.export.windows.review_usage`). The summary counts the windows verified marks
         touch and why those not exported were left out.
     include_stale : bool
         With ``only_verified``: also use verified marks made before a later change of the clock or of

@@ -20,12 +20,12 @@ appears in every image, in the scene's object order, also when out of view (then
 and ``visib_fract`` 0).
 
 Camera: the pinhole camera ``K_new`` (default: the raw camera's ``K``) without distortion, same size as
-the sensor. Events move to undistorted integer pixels through :func:`evpose.core.label.represent.undistorter_for`
+the sensor. Events move to undistorted integer pixels through :func:`evpose.core.label.event_frames.undistort.undistorter_for`
 (each event to exactly one pixel, so counts are preserved; events whose pixel maps outside the image
 are dropped). Masks are rasterised directly in the undistorted camera (exact, no resampling).
 
 ``rgb`` encoding: 8-bit RGB, ON events red, OFF events blue on black,
-:func:`evpose.core.label.represent.polarity_rgb` (``count / s`` clipped to 1, ``s`` = 99th percentile of the window's
+:func:`evpose.core.label.event_frames.display.polarity_rgb` (``count / s`` clipped to 1, ``s`` = 99th percentile of the window's
 non-zero counts); G is 0.
 
 ``obj_id``: the scene's ``class_id`` when the exported objects' class ids are distinct and >= 1,
@@ -44,9 +44,13 @@ import numpy as np
 
 from evpose.core.data.atomic import AtomicBatch, write_atomic
 from evpose.core.data.geometry import inv_T
-from evpose.core.export.common import ExportError, FormatWriter, encode_png, evpose_version, json_text
-from evpose.core.label.annotate import Request
-from evpose.core.label.represent import polarity_counts, undistorter_for
+from evpose.core.export.encode import encode_png, json_text
+from evpose.core.export.fingerprint import evpose_version
+from evpose.core.export.options import ExportError
+from evpose.core.export.writer import FormatWriter
+from evpose.core.label.event_frames.counts import polarity_counts
+from evpose.core.label.event_frames.undistort import undistorter_for
+from evpose.core.label.labels import Request
 
 
 def _K_of(scene, K_new):
@@ -63,7 +67,7 @@ def bop_obj_ids(scene, names) -> dict:
 
 def polarity_bgr_black(pos: np.ndarray, neg: np.ndarray, percentile: float = 99.0) -> np.ndarray:
     """``polarity_rgb(pos, neg, background="black", percentile)[..., ::-1]`` (BGR for OpenCV),
-    bit-identical (tested against evpose.core.label.represent), computed only at pixels with events."""
+    bit-identical (tested against evpose.core.label.event_frames.display), computed only at pixels with events."""
     H, W = pos.shape
     out = np.zeros((H * W, 3), np.uint8)
     p, n = pos.ravel(), neg.ravel()

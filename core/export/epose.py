@@ -17,7 +17,7 @@ events), 346x260 for a DAVIS346:
     Several objects: also ``NNNN_segmented_image_obj{K}.png``, the same for object ``K`` alone.
 ``NNNN_three_channel_image.png``
     8-bit RGB: R = ON count / max ON count, G = OFF count / max OFF count, B = latest event time at the
-    pixel ``(t_last - t0 + 1) / max`` (:func:`evpose.core.label.represent.three_channel`, this window's events only).
+    pixel ``(t_last - t0 + 1) / max`` (:func:`evpose.core.label.event_frames.three_channel.three_channel`, this window's events only).
 ``NNNN_bbox.txt``
     As the original: one exported object: one line of 8 numbers ``u1 v1 .. u4 v4`` (``%.4f``), the
     distorted pixel coordinates of box corners p1..p4; several: one line per object,
@@ -50,8 +50,11 @@ import time
 import numpy as np
 
 from evpose.core.data.atomic import AtomicBatch, write_atomic
-from evpose.core.export.common import ExportError, FormatWriter, encode_png, savemat_bytes
-from evpose.core.label.annotate import Request
+from evpose.core.export.encode import encode_png, savemat_bytes
+from evpose.core.export.epose_readme import readme_text
+from evpose.core.export.options import ExportError
+from evpose.core.export.writer import FormatWriter
+from evpose.core.label.labels import Request
 
 #: Original E-POSE corner order p1..p8 as indices into :func:`evpose.core.data.objects.ObjectModel.bbox_corners`
 #: (whose corner i takes the max along axis a when bit a of i is set).
@@ -60,7 +63,7 @@ EPOSE_CORNER_ORDER = np.array([3, 1, 2, 0, 7, 5, 6, 4])
 
 def three_channel_image(ev, width: int, height: int, t0_us: int, spike: np.ndarray, bgr: bool = False) -> np.ndarray:
     """``three_channel_rgb(three_channel(ev, width, height, t0_us, t1_us))`` as RGB ``uint8 (H, W, 3)``
-    (BGR with ``bgr``, for OpenCV), bit-identical (tested against evpose.core.label.represent), with the float
+    (BGR with ``bgr``, for OpenCV), bit-identical (tested against evpose.core.label.event_frames), with the float
     conversions done only at the pixels that have events (``spike`` > 0, flat ``(H*W,)``); the image is
     zero elsewhere. Same arithmetic: channel = float32(value / max) (float64 division), then
     rint(float64(channel) * 255). 0.6 ms instead of 4 ms CPU for a 16 k-event DAVIS346 window.
@@ -161,26 +164,34 @@ class EposeWriter(FormatWriter):
                 "spike": np.zeros(cam.height * cam.width, np.uint8)}
 
     def process(self, wctx, task, ev, labels):
-        st = wctx.state
-        cam = wctx.camera
-        H, W = cam.height, cam.width
         w = task.window
-        sel = wctx.sel
-        k = len(sel)
         stem = window_stem(w.index, wctx.spec.n_digits)
+        objs = [labels.objects[i] for i in wctx.sel]
         t0 = time.perf_counter()
-        # ---- images (raw pixels)
-        spike = st["spike"]
-        spike[:] = 0
-        if len(ev):
-            if int(ev.x.max()) >= W or int(ev.y.max()) >= H:
-                raise ExportError(f"{wctx.scene.manifest.events_path}: events/x, events/y: an event of window "
-                                  f"{w.index} lies outside the {W}x{H} sensor of scene.toml [camera]")
-            key = ev.y.astype(np.intp)
-            key *= W
-            key += ev.x
-            spike[key] = 255
-        lab = st["lut"][labels.label_map.ravel().astype(np.intp) + 1]          # 0 bg, 1..k
+        spike = _event_pixels(wctx, w.index, ev)
+        blobs = self._images(wctx, stem, ev, spike, labels.label_map, w.t0_us)
+        keypoints = _keypoints(wctx.camera, objs)
+        blobs.append((f"{stem}_bbox.txt", _bbox_text(objs, wctx.names).encode()))
+        t1 = time.perf_counter()
+        mat = savemat_bytes(_mat_fields(wctx, task, ev, objs, keypoints))
+        t2 = time.perf_counter()
+        with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
+            for name, data in blobs:
+                batch.add(wctx.out_dir / name, data)
+            batch.add(wctx.out_dir / f"{stem}_data.mat", mat)           # last: marks the window complete
+        t3 = time.perf_counter()
+        tm = wctx.timings
+        tm["images"] += t1 - t0
+        tm["mat"] += t2 - t1
+        tm["write"] += t3 - t2
+        return {"i": w.index, "status": "written", "n_events": len(ev)}, None
+
+    def _images(self, wctx, stem: str, ev, spike: np.ndarray, label_map: np.ndarray, t0_us: int) -> list:
+        """``(file name, PNG bytes)`` of the window's images: events, masks, segmentation, three-channel."""
+        st = wctx.state
+        H, W = wctx.camera.height, wctx.camera.width
+        k = len(wctx.sel)
+        lab = st["lut"][label_map.ravel().astype(np.intp) + 1]          # 0 bg, 1..k
         on_obj = lab > 0
         seg = np.where(on_obj, spike, np.uint8(0))
         comp = self.png_compression
@@ -197,133 +208,96 @@ class EposeWriter(FormatWriter):
             for j, m in enumerate(masks, 1):
                 blobs.append((f"{stem}_segmented_image_obj{j}.png",
                               encode_png(np.where(m, spike, np.uint8(0)).reshape(H, W), compression=comp)))
-        bgr = three_channel_image(ev, W, H, w.t0_us, spike, bgr=True)
+        bgr = three_channel_image(ev, W, H, t0_us, spike, bgr=True)
         blobs.append((f"{stem}_three_channel_image.png", encode_png(bgr, compression=comp)))
-        # ---- bbox.txt and .mat
-        objs = [labels.objects[i] for i in sel]
-        kp = np.empty((8, 5 * k))
-        centre = np.empty(2 * k)
-        box_c = np.empty((k, 5))
-        for j, o in enumerate(objs):
-            kp[:, 5 * j:5 * j + 2] = o.corners_uv[EPOSE_CORNER_ORDER]
-            kp[:, 5 * j + 2:5 * j + 5] = o.corners_cam[EPOSE_CORNER_ORDER]
-            uv, _ = cam.project(o.T_cam_obj[:3, 3][None])
-            centre[2 * j:2 * j + 2] = uv[0]
-            box_c[j, :2] = o.center_uv
-            box_c[j, 2:] = o.center_cam
-        rows = [" ".join(f"{v:.4f}" for v in o.corners_uv[EPOSE_CORNER_ORDER[:4]].ravel()) for o in objs]
-        if k == 1:
-            bbox_txt = rows[0] + "\n"
-        else:
-            bbox_txt = "".join(f"{n}  {r}\n" for n, r in zip(wctx.names, rows))
-        blobs.append((f"{stem}_bbox.txt", bbox_txt.encode()))
-        t1 = time.perf_counter()
-        t_ref = st["t_ref"]
-        evm = np.empty((len(ev), 4))
-        evm[:, 0] = ev.x
-        evm[:, 1] = ev.y
-        np.multiply(ev.t - t_ref, 1e-6, out=evm[:, 2])
-        np.multiply(ev.p, 2.0, out=evm[:, 3])
-        evm[:, 3] -= 1.0
-        T_bc = task.T_base_cam
-        clock = st["clock"]
-        fields = {
-            "pose": np.concatenate([o.T_cam_obj for o in objs], axis=1),
-            "keypointprojections": kp,
-            "centerInfo": centre[None, :],
-            "cameraPose": T_bc[:3, :].copy(),
-            "intrinsicMatrix": st["K"],
-            "time": np.array([[(w.t_label_us - t_ref) * 1e-6]]),
-            "events": evm,
-            "cls_index": st["class_ids"][None, :],
-            "T_base_cam": T_bc,
-            "t_start_us": np.array([[w.t0_us]], np.int64),
-            "t_end_us": np.array([[w.t1_us]], np.int64),
-            "t_label_us": np.array([[w.t_label_us]], np.int64),
-            "t_ref_us": np.array([[t_ref]], np.int64),
-            "clock_offset_us": np.array([[clock.offset_us]], np.int64),
-            "clock_skew_ppm": np.array([[clock.skew_ppm]], np.float64),
-            "distCoeffs": st["dist"][None, :],
-            "image_size": np.array([[H, W]], np.float64),
-            "object_names": st["names"],
-            "box_center": box_c,
-            "bbox_obj": np.array([o.bbox_obj for o in objs], np.float64).reshape(k, 4),
-            "bbox_visib": np.array([o.bbox_visib for o in objs], np.float64).reshape(k, 4),
-            "px_count_all": np.array([[o.px_count_all for o in objs]], np.float64),
-            "px_count_visib": np.array([[o.px_count_visib for o in objs]], np.float64),
-            "visib_fract": np.array([[o.visib_fract for o in objs]], np.float64),
-        }
-        mat = savemat_bytes(fields)
-        t2 = time.perf_counter()
-        with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
-            for name, data in blobs:
-                batch.add(wctx.out_dir / name, data)
-            batch.add(wctx.out_dir / f"{stem}_data.mat", mat)           # last: marks the window complete
-        t3 = time.perf_counter()
-        tm = wctx.timings
-        tm["images"] += t1 - t0
-        tm["mat"] += t2 - t1
-        tm["write"] += t3 - t2
-        return {"i": w.index, "status": "written", "n_events": len(ev)}, None
+        return blobs
 
     # ------------------------------------------------------------------ README
     def readme(self, ctx) -> str:
-        scene = ctx.scene
-        clock = scene.clock
-        names = ", ".join(f"{j}={n}" for j, n in enumerate(ctx.names, 1))
-        fp = ctx.fingerprint["windows"]
-        win = (f"{fp['window_us']} us" if fp["window_us"] is not None else f"{fp['window_events']} events")
-        return f"""E-POSE-layout export of scene "{scene.name}" written by evpose {_version()}.
-See export_manifest.json for the exact configuration, clock, corrections and per-window status.
-
-CONVENTIONS
-- Windows: consecutive half-open event-time intervals [t0, t1) of {win}, tiling the whole recording
-  from its first event; every event is in exactly one window. File prefix NNNN = zero-based window
-  index ({ctx.n_digits} digits). Windows without a label (label time outside the trajectory) and windows
-  left out by --only-verified have no files; export_manifest.json lists them with the reason.
-- Label time: the window {"centre (t0 + (t1 - t0) // 2)" if ctx.label_at == "center" else "end t1"} on the event clock.
-  Poses are interpolated at pose time t_pose = t_event + offset_us + skew_ppm*1e-6*(t_event - t_ref_us)
-  with offset_us = {clock.offset_us}, skew_ppm = {clock.skew_ppm!r}, t_ref_us = {clock.t_ref_us} (the first event).
-  The same clock is used by every product (poses, cameraPose, keypoints, masks, segmentation).
-- Distortion: every image and every pixel coordinate is in the RAW (distorted) event camera, the same
-  pixels as the events (pixel centres at integer coordinates, 0-based). Nothing is undistorted.
-- Units: metres (poses, XYZ, box corners), microseconds (int64 *_us fields), seconds in the
-  original fields `time` and `events(:,3)` (since the recording's first event).
-- Objects (K in *_obj{{K}}.png and mask_image_all values): {names}. Objects of the scene that are not
-  exported still occlude the exported ones.
-- Encodings: event_image 8-bit 0/255 (any event); mask_image / mask_image_obj{{K}} 1-bit visible masks;
-  mask_image_all 8-bit labels 0 = background, K = object (not saturated); segmented_image(_obj{{K}})
-  8-bit 255 where an event lies on the object's visible mask; three_channel_image RGB = (ON count /
-  max, OFF count / max, latest event time / max) of this window only.
-- Box: axis-aligned box of the mesh in the object frame, enlarged by {ctx.margin_m * 1e3:g} mm on every side.
-
-DELIBERATE DIFFERENCES FROM THE ORIGINAL E-POSE SCRIPTS
- 1. Box corners are projected each with its own depth (the original divided every corner by the
-    first corner's depth) and with the lens distortion applied once, forward (the original projected
-    with a pinhole and then undistorted the result, and clamped negative coordinates to 0).
- 2. Keypoints, masks and images share the raw pixel grid; the original undistorted the event images.
- 3. cameraPose is T_base_cam at each window's own label time (the original stored the second frame's
-    pose in every file). Shape 3x4 kept; the full 4x4 is in T_base_cam.
- 4. Masks are z-buffered triangle rasterisations of the mesh (no holes, exact occlusion), not splats of
-    mesh vertices; the single-object mask is not dilated; label images are never saturated.
- 5. The box margin enlarges the box on every side (the original's "+1 mm" shifted it); default 0.
- 6. The 3-channel image is computed from each window's events only (the original never reset its
-    accumulators) and its channels are ON count, OFF count and latest time (the original used a sum of
-    timestamps and the latest ON / OFF times).
- 7. Windows are half-open: the original put the event at each boundary into two windows.
- 8. Events at x = 0 or y = 0 are kept in every product (the original dropped them from its images).
- 9. One clock model (offset and skew) is applied to all products (the original applied its time
-    offset in one script only).
-10. File numbering starts at 0000 (the original started at 0001) and every window is written (the
-    original skipped its last 6 or 12 windows); windows are not cut at the first pose.
-11. centerInfo is the correctly projected object-frame origin; time is the label time (the original
-    used the time of the first event after the window end); bbox.txt keeps the original layout with
-    correct values (distorted pixels, not clamped).
-12. Fields were added to the .mat files (see above); the original fields keep their names and shapes.
-"""
+        return readme_text(ctx)
 
 
-def _version() -> str:
-    from evpose.core.export.common import evpose_version
+def _event_pixels(wctx, index: int, ev) -> np.ndarray:
+    """The worker's flat ``(H*W,)`` uint8 buffer set to 255 at every pixel with an event of the window
+    (either polarity), 0 elsewhere; an event off the sensor is refused naming the event file."""
+    H, W = wctx.camera.height, wctx.camera.width
+    spike = wctx.state["spike"]
+    spike[:] = 0
+    if len(ev):
+        if int(ev.x.max()) >= W or int(ev.y.max()) >= H:
+            raise ExportError(f"{wctx.scene.manifest.events_path}: events/x, events/y: an event of window "
+                              f"{index} lies outside the {W}x{H} sensor of scene.toml [camera]")
+        key = ev.y.astype(np.intp)
+        key *= W
+        key += ev.x
+        spike[key] = 255
+    return spike
 
-    return evpose_version()
+
+def _keypoints(cam, objs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``keypointprojections`` (8, 5k), ``centerInfo`` (2k,) and ``box_center`` (k, 5) of the .mat."""
+    k = len(objs)
+    kp = np.empty((8, 5 * k))
+    centre = np.empty(2 * k)
+    box_c = np.empty((k, 5))
+    for j, o in enumerate(objs):
+        kp[:, 5 * j:5 * j + 2] = o.corners_uv[EPOSE_CORNER_ORDER]
+        kp[:, 5 * j + 2:5 * j + 5] = o.corners_cam[EPOSE_CORNER_ORDER]
+        uv, _ = cam.project(o.T_cam_obj[:3, 3][None])
+        centre[2 * j:2 * j + 2] = uv[0]
+        box_c[j, :2] = o.center_uv
+        box_c[j, 2:] = o.center_cam
+    return kp, centre, box_c
+
+
+def _bbox_text(objs, names) -> str:
+    """``NNNN_bbox.txt``: the distorted pixels of corners p1..p4 (one object: one line; several: one line
+    per object after its name)."""
+    rows = [" ".join(f"{v:.4f}" for v in o.corners_uv[EPOSE_CORNER_ORDER[:4]].ravel()) for o in objs]
+    if len(objs) == 1:
+        return rows[0] + "\n"
+    return "".join(f"{n}  {r}\n" for n, r in zip(names, rows))
+
+
+def _mat_fields(wctx, task, ev, objs, keypoints) -> dict:
+    """The fields of ``NNNN_data.mat`` (see the module docstring), in file order."""
+    st = wctx.state
+    cam = wctx.camera
+    w = task.window
+    k = len(objs)
+    kp, centre, box_c = keypoints
+    t_ref = st["t_ref"]
+    evm = np.empty((len(ev), 4))
+    evm[:, 0] = ev.x
+    evm[:, 1] = ev.y
+    np.multiply(ev.t - t_ref, 1e-6, out=evm[:, 2])
+    np.multiply(ev.p, 2.0, out=evm[:, 3])
+    evm[:, 3] -= 1.0
+    T_bc = task.T_base_cam
+    clock = st["clock"]
+    return {
+        "pose": np.concatenate([o.T_cam_obj for o in objs], axis=1),
+        "keypointprojections": kp,
+        "centerInfo": centre[None, :],
+        "cameraPose": T_bc[:3, :].copy(),
+        "intrinsicMatrix": st["K"],
+        "time": np.array([[(w.t_label_us - t_ref) * 1e-6]]),
+        "events": evm,
+        "cls_index": st["class_ids"][None, :],
+        "T_base_cam": T_bc,
+        "t_start_us": np.array([[w.t0_us]], np.int64),
+        "t_end_us": np.array([[w.t1_us]], np.int64),
+        "t_label_us": np.array([[w.t_label_us]], np.int64),
+        "t_ref_us": np.array([[t_ref]], np.int64),
+        "clock_offset_us": np.array([[clock.offset_us]], np.int64),
+        "clock_skew_ppm": np.array([[clock.skew_ppm]], np.float64),
+        "distCoeffs": st["dist"][None, :],
+        "image_size": np.array([[cam.height, cam.width]], np.float64),
+        "object_names": st["names"],
+        "box_center": box_c,
+        "bbox_obj": np.array([o.bbox_obj for o in objs], np.float64).reshape(k, 4),
+        "bbox_visib": np.array([o.bbox_visib for o in objs], np.float64).reshape(k, 4),
+        "px_count_all": np.array([[o.px_count_all for o in objs]], np.float64),
+        "px_count_visib": np.array([[o.px_count_visib for o in objs]], np.float64),
+        "visib_fract": np.array([[o.visib_fract for o in objs]], np.float64),
+    }

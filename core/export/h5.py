@@ -18,7 +18,7 @@ Layout (N = selected windows, in tiling order; K = exported objects; H x W = sen
     label_map          (N, H, W) int16        exported object index 0..K-1 of the visible surface, -1 background
                                               (pixels of scene objects that are not exported are -1 too)
     frames/counts      (N, 2, H, W) uint16    [0] ON (p=1), [1] OFF (p=0) event counts, saturated at 65535
-    frames/three_channel (N, H, W, 3) uint8   optional: evpose.core.label.represent.three_channel as RGB (ON, OFF, time)
+    frames/three_channel (N, H, W, 3) uint8   optional: evpose.core.label.event_frames.three_channel as RGB (ON, OFF, time)
     objects/corners_obj (K, 8, 3) float64     box corners in the object frame (corner order: bit a of the
                                               corner index set = max along axis a; x bit 0, y bit 1, z bit 2)
     _done              (N,) uint8             1 when the row is complete (resume bookkeeping)
@@ -32,7 +32,6 @@ counts_saturation, config_sha256.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import time
 from pathlib import Path
@@ -41,17 +40,26 @@ import numpy as np
 
 from evpose.core.data.atomic import fsync_dir, write_atomic
 from evpose.core.data.os_errors import ensure_free_space, os_error_from_hdf5
-from evpose.core.export.common import ExportError, FormatWriter, evpose_version
-from evpose.core.label.annotate import Request
-from evpose.core.label.represent import polarity_counts, three_channel, three_channel_rgb
+from evpose.core.export.fingerprint import evpose_version
+from evpose.core.export.h5_file import (
+    COUNTS_MAX,
+    MARGIN_BYTES,
+    WINDOW_DTYPE,
+    chunk_layout,
+    create_file,
+    layout_ok,
+    need_bytes,
+    within_end_of_allocation,
+)
+from evpose.core.export.options import ExportError
+from evpose.core.export.writer import FormatWriter
+from evpose.core.label.event_frames.counts import polarity_counts
+from evpose.core.label.event_frames.display import three_channel_rgb
+from evpose.core.label.event_frames.three_channel import three_channel
+from evpose.core.label.labels import Request
 
-H5_FORMAT = "evpose-h5/1"
-COUNTS_MAX = np.iinfo(np.uint16).max
-_WINDOW_DTYPE = np.dtype([("index", "<i8"), ("t0_us", "<i8"), ("t1_us", "<i8"), ("t_label_us", "<i8"),
-                          ("i0", "<i8"), ("i1", "<i8"), ("n_events", "<i8"), ("valid", "?")])
-_BLOCK = 32        # rows buffered before one write per dataset
-#: Free space kept beyond the estimate of each write (HDF5 metadata, closing the file).
-_MARGIN_BYTES = 1 << 20
+#: Rows buffered before one write per dataset.
+_BLOCK = 32
 
 
 def _h5_failure(exc: BaseException, path: Path) -> BaseException:
@@ -67,48 +75,15 @@ def _h5_failure(exc: BaseException, path: Path) -> BaseException:
     return err
 
 
-def _superblock_eoa(path: Path) -> int | None:
-    """The end-of-allocation address stored in an HDF5 superblock (versions 0-3, at offset 0), or None."""
-    import struct
-
-    with open(path, "rb") as fh:
-        head = fh.read(56)
-    if len(head) < 36 or head[:8] != b"\x89HDF\r\n\x1a\n":
-        return None
-    version = head[8]
-    off = {0: 40, 1: 48, 2: 28, 3: 28}.get(version)
-    if off is None or len(head) < off + 8:
-        return None
-    return struct.unpack_from("<Q", head, off)[0]
-
-
-def _within_end_of_allocation(f, path: Path) -> bool:
-    """A partial file left by a killed or failed run is sound to resume when HDF5 can walk all of its
-    objects and every data chunk lies below the end of allocation its superblock records. (HDF5 can
-    evict metadata that points past the recorded end before a crash; resuming such a file fails later
-    with ``addr overflow``.) Reads only the chunk index, not the data."""
+def _is_complete(final: Path, sha: str) -> bool:
+    """``final`` is a finished export of the configuration ``sha``."""
     import h5py
 
-    eoa = _superblock_eoa(path)
-    if eoa is None:
+    try:
+        with h5py.File(final, "r") as f:
+            return f.attrs.get("config_sha256") == sha
+    except OSError:
         return False
-    end = 0
-
-    def visit(_name, obj):
-        nonlocal end
-        if isinstance(obj, h5py.Dataset) and obj.chunks is not None:
-            def info(ci):
-                nonlocal end
-                end = max(end, ci.byte_offset + ci.size)
-
-            if hasattr(obj.id, "chunk_iter"):
-                obj.id.chunk_iter(info)
-            else:  # pragma: no cover - older HDF5
-                for i in range(obj.id.get_num_chunks()):
-                    info(obj.id.get_chunk_info(i))
-
-    f.visititems(visit)
-    return end <= eoa
 
 
 def _safe_name(name: str) -> str:
@@ -137,90 +112,56 @@ class H5Writer(FormatWriter):
         name = _safe_name(ctx.scene.name)
         return ctx.out_dir / f"{name}.h5", ctx.out_dir / f".{name}.h5.partial"
 
-    def _comp(self) -> dict:
-        if self.compression == "blosc-lz4":
-            import hdf5plugin
-
-            return dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
-        if self.compression == "gzip":
-            return {"compression": "gzip", "compression_opts": 4, "shuffle": True}
-        return {}
-
     # ------------------------------------------------------------------ parent
     def begin(self, ctx) -> None:
-        import h5py
-
         final, part = self.paths(ctx)
         ctx.extra["h5"] = None
         ctx.extra["h5_buffer"] = {}
         write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync, ctx.owned)
         if final.exists():
-            try:
-                with h5py.File(final, "r") as f:
-                    if f.attrs.get("config_sha256") == ctx.sha:
-                        ctx.extra["h5_complete"] = True
-                        return
-            except OSError:
-                pass
+            if _is_complete(final, ctx.sha):
+                ctx.extra["h5_complete"] = True
+                return
             final.unlink()
         ctx.extra["h5_complete"] = False
-        f = None
-        if part.exists():
-            try:
-                f = h5py.File(part, "r+", rdcc_nbytes=0)
-                if (f.attrs.get("config_sha256") != ctx.sha or not self._layout_ok(ctx, f)
-                        or not _within_end_of_allocation(f, part)):
-                    f.close()
-                    f = None
-            except Exception:      # a crash left it unreadable: start over  # noqa: BLE001
-                if f is not None:
-                    ctx.extra["h5"] = f
-                    self._discard(ctx)
-                f = None
-            if f is None:
-                part.unlink(missing_ok=True)
+        f = self._resume(ctx, part) if part.exists() else None
         if f is None:
-            ensure_free_space(part, _MARGIN_BYTES + len(ctx.extra["selected"]) * _WINDOW_DTYPE.itemsize,
-                              "a new HDF5 file")
-            ctx.owned.partial(part)          # logged before it exists (evpose.core.data.owned_files)
-            try:
-                f = self._create(ctx, part)
-            except Exception as exc:
-                self._discard(ctx)
-                raise _h5_failure(exc, part) from None
+            f = self._create(ctx, part)
         ctx.extra["h5"] = f
-        ctx.extra["h5_layout"] = self._layout(f)
+        ctx.extra["h5_layout"] = chunk_layout(f)
 
-    def _layout_ok(self, ctx, f) -> bool:
-        """The partial file has every dataset, each with one row per selected window."""
-        n = len(ctx.extra["selected"])
-        names = ["windows", "_done", "T_cam_obj", "label_map", "frames/counts"]
-        if self.three_channel:
-            names.append("frames/three_channel")
-        return all(k in f and f[k].shape[:1] == (n,) for k in names) and f["_done"][:].shape == (n,)
+    def _resume(self, ctx, part: Path):
+        """The partial file of an earlier run of this configuration, open for writing, when it is sound
+        to resume; else None (the file is removed)."""
+        import h5py
 
-    @staticmethod
-    def _layout(f) -> dict:
-        """Per-row dataset: (rows per chunk, bytes per row before compression), for the free-space check."""
-        out = {}
+        f = None
+        try:
+            f = h5py.File(part, "r+", rdcc_nbytes=0)
+            if (f.attrs.get("config_sha256") != ctx.sha
+                    or not layout_ok(f, len(ctx.extra["selected"]), self.three_channel)
+                    or not within_end_of_allocation(f, part)):
+                f.close()
+                f = None
+        except Exception:      # a crash left it unreadable: start over  # noqa: BLE001
+            if f is not None:
+                ctx.extra["h5"] = f
+                self._discard(ctx)
+            f = None
+        if f is None:
+            part.unlink(missing_ok=True)
+        return f
 
-        def visit(name, obj):
-            import h5py
-
-            if isinstance(obj, h5py.Dataset) and name != "windows" and obj.ndim >= 1 and obj.chunks is not None:
-                out[name] = (int(obj.chunks[0]), int(np.prod(obj.shape[1:], dtype=np.int64)) * obj.dtype.itemsize)
-
-        f.visititems(visit)
-        return out
-
-    def _need_bytes(self, ctx, runs) -> int:
-        """An upper bound of the bytes writing rows ``runs`` (list of [a, b)) adds to the file: every chunk
-        the rows touch, uncompressed, plus a margin."""
-        need = _MARGIN_BYTES
-        for chunk_rows, row_bytes in ctx.extra.get("h5_layout", {}).values():
-            for a, b in runs:
-                need += ((b - 1) // chunk_rows - a // chunk_rows + 1) * chunk_rows * row_bytes
-        return need
+    def _create(self, ctx, part: Path):
+        """A new partial file (after a free-space check), logged before it exists."""
+        ensure_free_space(part, MARGIN_BYTES + len(ctx.extra["selected"]) * WINDOW_DTYPE.itemsize,
+                          "a new HDF5 file")
+        ctx.owned.partial(part)          # logged before it exists (evpose.core.data.owned_log)
+        try:
+            return create_file(ctx, part, three_channel=self.three_channel, compression=self.compression)
+        except Exception as exc:
+            self._discard(ctx)
+            raise _h5_failure(exc, part) from None
 
     def _discard(self, ctx) -> None:
         """Throw the partial file away after a failed HDF5 write (a full disk): truncated first, so that
@@ -237,74 +178,6 @@ class H5Writer(FormatWriter):
                 f.close()
         with contextlib.suppress(OSError):
             part.unlink()
-
-    def _create(self, ctx, part: Path):
-        import h5py
-
-        scene = ctx.scene
-        cam = scene.camera
-        sel = ctx.extra["selected"]
-        N, K, H, W = len(sel), len(ctx.names), cam.height, cam.width
-        # no chunk cache: a write reaches the file at once, so a full disk fails that write or the flush after it
-        # (an evicted chunk's failure would surface only at close, when HDF5 could no longer close the file)
-        f = h5py.File(part, "w", track_order=False, rdcc_nbytes=0)
-        rows = max(1, min(N, 1024))
-        small = dict(chunks=True) if N else {}
-
-        def ds(name, shape, dtype, fill=None, chunk=None, comp=False):
-            kw = {"chunks": chunk or ((rows,) + shape[1:] if N else None)}
-            if comp:
-                kw.update(self._comp())
-            if fill is not None:
-                kw["fillvalue"] = fill
-            return f.create_dataset(name, shape=shape, dtype=dtype, track_times=False,
-                                    **(kw if N else {}))
-
-        win = np.zeros(N, _WINDOW_DTYPE)
-        for r, w in enumerate(sel):
-            win[r] = (w.index, w.t0_us, w.t1_us, w.t_label_us, w.i0, w.i1, w.n_events, bool(ctx.extra["valid"][r]))
-        f.create_dataset("windows", data=win, track_times=False, **small)
-        ds("T_cam_obj", (N, K, 4, 4), "f8", np.nan)
-        ds("T_base_cam", (N, 4, 4), "f8", np.nan)
-        ds("bbox_obj", (N, K, 4), "i4", -1)
-        ds("bbox_visib", (N, K, 4), "i4", -1)
-        ds("keypoints_uv", (N, K, 8, 2), "f8", np.nan)
-        ds("corners_cam", (N, K, 8, 3), "f8", np.nan)
-        ds("center_uv", (N, K, 2), "f8", np.nan)
-        ds("visib_fract", (N, K), "f8", 0.0)
-        ds("px_count_all", (N, K), "i8", 0)
-        ds("px_count_visib", (N, K), "i8", 0)
-        ds("label_map", (N, H, W), "i2", -1, chunk=(1, H, W), comp=True)
-        ds("frames/counts", (N, 2, H, W), "u2", 0, chunk=(1, 2, H, W), comp=True)
-        if self.three_channel:
-            ds("frames/three_channel", (N, H, W, 3), "u1", 0, chunk=(1, H, W, 3), comp=True)
-        ds("_done", (N,), "u1", 0)
-        corners = np.stack([scene.model(n).bbox_corners(ctx.margin_m) for n in ctx.names]) if K else np.zeros((0, 8, 3))
-        f.create_dataset("objects/corners_obj", data=corners, track_times=False)
-        clock = scene.clock
-        fp = ctx.fingerprint
-        a = f.attrs
-        a["format"] = H5_FORMAT
-        a["evpose_version"] = evpose_version()
-        a["scene"] = scene.name
-        a["camera_K"] = cam.K
-        a["camera_dist"] = cam.dist
-        a["width"], a["height"] = W, H
-        a["object_names"] = np.array(ctx.names, dtype=h5py.string_dtype())
-        a["class_ids"] = np.array([scene.manifest.object(n).class_id for n in ctx.names], np.int64)
-        a["clock_offset_us"] = np.int64(clock.offset_us)
-        a["clock_skew_ppm"] = float(clock.skew_ppm)
-        a["clock_t_ref_us"] = np.int64(clock.t_ref_us)
-        a["clock_model"] = "t_pose_us = t_event_us + offset_us + skew_ppm * 1e-6 * (t_event_us - t_ref_us)"
-        a["corrections"] = json.dumps(scene.corrections.to_json())
-        a["window_us"] = -1 if fp["windows"]["window_us"] is None else fp["windows"]["window_us"]
-        a["window_events"] = -1 if fp["windows"]["window_events"] is None else fp["windows"]["window_events"]
-        a["label_at"] = ctx.label_at
-        a["margin_m"] = float(ctx.margin_m)
-        a["counts_saturation"] = int(COUNTS_MAX)
-        a["config_sha256"] = ctx.sha
-        f.flush()
-        return f
 
     def completed(self, ctx) -> dict[int, dict]:
         sel = ctx.extra["selected"]
@@ -338,7 +211,7 @@ class H5Writer(FormatWriter):
         keys = [k for k in buf[rows[0]] if k != "row"]
         _, part = self.paths(ctx)
         # a full disk must stop us here, before HDF5 runs into it: the file stays whole and resumable
-        ensure_free_space(part, self._need_bytes(ctx, [(run[0], run[-1] + 1) for run in runs]),
+        ensure_free_space(part, need_bytes(ctx.extra.get("h5_layout", {}), [(run[0], run[-1] + 1) for run in runs]),
                           f"{len(rows)} windows")
         try:
             for run in runs:

@@ -6,8 +6,13 @@ windows), ``dsec`` (DSEC event HDF5 + trajectory + calibration), ``rpg`` (Event 
 
 Every importer builds the scene atomically (nothing at ``out`` unless it succeeded), streams the events with
 bounded memory, never modifies its inputs, and writes ``import_report.json`` listing what was assumed or
-repaired. Bad input raises :class:`ImportFailure` (a ``ValueError``) whose message names the file, the record
-and the field.
+repaired. Bad input raises :class:`ImportFailure` (an :class:`~evpose.core.errors.InputError`) whose message
+names the file, the record and the field.
+
+Shared pieces, one module each: ``failure`` (the error), ``options``, ``report`` (report and context),
+``time_units``/``time_guess`` (exact conversions, unit guessing), ``pose_checks``/``pose_text``/``static_scene``
+(poses), ``event_sink`` (event stream validation), ``calibration``/``calibration_formats``, ``object_args``
+(``--objects``), ``meshes``, ``output`` (``--out``/``--force``) and ``scene_builder`` (the atomic scene folder).
 
 Example
 -------
@@ -19,7 +24,10 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
-from evpose.core.importers.common import REPORT_FILENAME, ImportContext, ImportFailure, ImportOptions, ImportReport
+from evpose.core.importers.failure import ImportFailure
+from evpose.core.importers.options import ImportOptions
+from evpose.core.importers.output import check_out, import_inputs
+from evpose.core.importers.report import REPORT_FILENAME, ImportContext, ImportReport, stderr_log
 
 __all__ = ["FORMATS", "import_scene", "ImportFailure", "ImportOptions", "ImportReport", "REPORT_FILENAME"]
 
@@ -75,12 +83,8 @@ def import_scene(fmt: str, sources, out, options: ImportOptions | None = None, *
             raise TypeError(f"import_scene: unknown option {k!r}")
         setattr(opts, k, v)
     if isinstance(log, str):
-        from evpose.core.importers.common import _stderr_log
-
-        log = _stderr_log
+        log = stderr_log
     ctx = ImportContext(fmt, sources, opts, progress=progress, cancel=cancel, log=log)
-    from evpose.core.importers.common import check_out, import_inputs
-
     check_out(out, opts.force, import_inputs(sources, opts))   # fail fast, before reading anything (checked again when writing)
     mod, fn = FORMATS[fmt]
     func = getattr(importlib.import_module(f".{mod}", __name__), fn)

@@ -9,6 +9,7 @@ import numpy as np
 
 from evpose.core.label.windows import Window
 
+
 @dataclass(frozen=True)
 class Request:
     """Which products to compute for each window.

@@ -849,10 +849,11 @@ class Rasterizer:
         Appends ``(vertex indices (3, n) offset by voff, candidate pixels (k, n), global ids
         (n,))`` to ``groups[k]`` for the frame-wide pixel tests (very large batches go straight
         to ``evaluate(idx, pix, gid)``), and the covered pairs of tile-path triangles directly to
-        ``results`` (see :meth:`_frame`).
+        ``results`` (see :meth:`_frame`). Steps: integer boxes (:meth:`_triangle_boxes`), one-pixel
+        boxes (:meth:`_one_pixel_candidates`), the tile path (:meth:`_split_tile_path`), boxes of 2 or
+        2 x 2 pixels (:meth:`_small_box_candidates`), larger boxes (:meth:`_large_box_candidates`).
         """
         t0 = time.perf_counter()
-        W, H, HW = self.width, self.height, self.width * self.height
         FT = vs.FT
 
         def add(k, t, pix, idx=None):
@@ -861,8 +862,32 @@ class Rasterizer:
                 idx = idx + voff
             groups[k].append((idx, pix, t + base))
 
-        # ---- integer candidate boxes: lane-wise minimum of the three vertex records
-        G = vs.rec.take(FT)                                       # (3, n) uint64
+        M64, t_one, t_med = self._triangle_boxes(vs)
+        t1 = time.perf_counter()
+        self._acc("triangle boxes", t1 - t0)
+        if len(t_one):
+            self._one_pixel_candidates(M64, t_one, add)
+        t2 = time.perf_counter()
+        self._acc("candidates", t2 - t1)
+        if not len(t_med):
+            return
+        if vs.bad is not None:
+            t_med = self._split_tile_path(vs, t_med, base, want_depth, results)
+        t3 = time.perf_counter()
+        self._acc("tile path", t3 - t2)
+        if not len(t_med):
+            return
+        big = self._small_box_candidates(M64, t_med, add)
+        if len(big):
+            t3 += self._large_box_candidates(vs, t_med.take(big), voff, base, add, evaluate)
+        self._acc("candidates", time.perf_counter() - t3)
+
+    @staticmethod
+    def _triangle_boxes(vs: _VertexStage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Integer candidate boxes of the triangles: the lane-wise minimum ``M64`` (uint64 per triangle) of
+        their vertex records, the triangles with exactly one candidate pixel, and those with a side of
+        2 or more pixels or on the tile path (record 0)."""
+        G = vs.rec.take(vs.FT)                                    # (3, n) uint64
         M = np.minimum(np.minimum(G[0].view(np.uint16), G[1].view(np.uint16)), G[2].view(np.uint16))
         M64 = M.view(np.uint64)
         S = M64 & _U64_LOW32
@@ -870,47 +895,45 @@ class Rasterizer:
         t_one = np.flatnonzero(S == _LANE_MASK)                   # one candidate pixel
         S &= _LANE_MASK
         t_med = np.flatnonzero(S != _LANE_MASK)                   # a side of >= 2 px, or tile path
-        t1 = time.perf_counter()
-        self._acc("triangle boxes", t1 - t0)
+        return M64, t_one, t_med
 
-        # ---- one candidate pixel
+    def _one_pixel_candidates(self, M64: np.ndarray, t_one: np.ndarray, add) -> None:
+        """The one candidate pixel of each triangle ``t_one`` whose box holds exactly one, if in the image."""
+        W, H = self.width, self.height
+        if _LITTLE_ENDIAN:
+            m = M64.take(t_one).view(np.int64)
+            lu = m & 0xFFFF                                       # OFF + lo_u (first lane)
+            lv = m >> 16
+            lv &= 0xFFFF
+        else:
+            lanes = M64.view(np.uint16).reshape(-1, 4)
+            lu = lanes[:, 0].take(t_one).astype(np.int64)
+            lv = lanes[:, 1].take(t_one).astype(np.int64)
+        lu -= _BOX_OFF
+        lv -= _BOX_OFF
+        inside = lu.view(np.uint64) < W                           # negative -> huge
+        inside &= lv.view(np.uint64) < H
+        lv *= W
+        lv += lu                                                  # flat pixel index
+        if not inside.all():
+            t_one, lv = t_one[inside], lv[inside]
         if len(t_one):
-            if _LITTLE_ENDIAN:
-                m = M64.take(t_one).view(np.int64)
-                lu = m & 0xFFFF                                   # OFF + lo_u (first lane)
-                lv = m >> 16
-                lv &= 0xFFFF
-            else:
-                lanes = M.reshape(-1, 4)
-                lu = lanes[:, 0].take(t_one).astype(np.int64)
-                lv = lanes[:, 1].take(t_one).astype(np.int64)
-            lu -= _BOX_OFF
-            lv -= _BOX_OFF
-            inside = lu.view(np.uint64) < W                       # negative -> huge
-            inside &= lv.view(np.uint64) < H
-            lv *= W
-            lv += lu                                              # flat pixel index
-            if not inside.all():
-                t_one, lv = t_one[inside], lv[inside]
-            if len(t_one):
-                add(1, t_one, lv[None, :])
-        t2 = time.perf_counter()
-        self._acc("candidates", t2 - t1)
-        if not len(t_med):
-            return
+            add(1, t_one, lv[None, :])
 
-        # ---- tile path: triangles with a vertex outside the fast-path disc
-        if vs.bad is not None:
-            tb = vs.bad.take(FT.take(t_med, axis=1)).any(axis=0)
-            if tb.any():
-                self._tile_path(vs.V, FT, t_med[tb], base, want_depth, results)
-                t_med = t_med[~tb]
-        t3 = time.perf_counter()
-        self._acc("tile path", t3 - t2)
-        if not len(t_med):
-            return
+    def _split_tile_path(self, vs: _VertexStage, t_med: np.ndarray, base: int, want_depth: bool,
+                         results: list) -> np.ndarray:
+        """Send the triangles of ``t_med`` with a vertex outside the fast-path disc down the tile path
+        (their covered pairs go to ``results``); returns the others."""
+        tb = vs.bad.take(vs.FT.take(t_med, axis=1)).any(axis=0)
+        if tb.any():
+            self._tile_path(vs.V, vs.FT, t_med[tb], base, want_depth, results)
+            t_med = t_med[~tb]
+        return t_med
 
-        # ---- boxes of 2 or 2 x 2 pixels (inside the image): their integer boxes are exact
+    def _small_box_candidates(self, M64: np.ndarray, t_med: np.ndarray, add) -> np.ndarray:
+        """Boxes of 2 or 2 x 2 pixels inside the image: their integer boxes are exact, so their pixels are
+        the candidates. Returns the positions in ``t_med`` of the larger (or image-crossing) non-empty boxes."""
+        W, H = self.width, self.height
         L = M64.take(t_med).view(np.uint16).reshape(-1, 4).T.astype(np.int32)   # (4, n)
         lu, lv = L[0] - _BOX_OFF, L[1] - _BOX_OFF
         su, sv = _BOX_OFF - L[2] - lu, _BOX_OFF - L[3] - lv        # box sides - 1
@@ -925,60 +948,68 @@ class Rasterizer:
         sel = np.flatnonzero(small & (n_side == 2))              # 2 x 2
         if len(sel):
             add(4, t_med.take(sel), corner.take(sel)[None, :] + self._offsets[2])
+        return np.flatnonzero(nonempty & ~small)
 
-        # ---- larger boxes (or crossing the image border): exact float boxes with the margin
-        sel = np.flatnonzero(nonempty & ~small)
-        if len(sel):
-            t_big = t_med.take(sel)
-            idx = FT.take(t_big, axis=1)
-            U, Vv = vs.u.take(idx), vs.v.take(idx)              # (3, n)
-            umin, umax = U.min(axis=0), U.max(axis=0)
-            vmin, vmax = Vv.min(axis=0), Vv.max(axis=0)
-            du, dv = umax - umin, vmax - vmin
-            marg = np.float32(self._c) * (du * du + dv * dv) + np.float32(_EPS_PX)
-            u0 = np.maximum(np.ceil(umin - marg), 0).astype(np.intp)
-            u1 = np.minimum(np.floor(umax + marg), W - 1).astype(np.intp)
-            v0 = np.maximum(np.ceil(vmin - marg), 0).astype(np.intp)
-            v1 = np.minimum(np.floor(vmax + marg), H - 1).astype(np.intp)
-            nu, nv = u1 - u0 + 1, v1 - v0 + 1
-            lng = np.maximum(nu, nv)
-            sht = np.minimum(nu, nv)
-            corner = v0 * W + u0
-            ok = sht > 0
-            # blocks from the box corner (extra pixels of a block are tested exactly too;
-            # candidates past the last row map to the dummy pixel)
-            for k, want in ((4, ok & (lng <= 2)), (6, ok & (lng == 3) & (sht < 3)), (9, ok & (sht == 3) & (lng == 3))):
-                sb = np.flatnonzero(want)
-                if not len(sb):
-                    continue
-                b = corner.take(sb)[None, :]
-                if k == 4:
-                    pix = b + self._offsets[2]
-                elif k == 6:                                    # 3 x 2 along the long side
-                    pix = b + np.where(nu.take(sb) == 3, self._offsets["3x2"], self._offsets["2x3"])
-                else:
-                    pix = b + self._offsets[3]
-                np.minimum(pix, HW, out=pix)
-                add(k, t_big.take(sb), pix, idx.take(sb, axis=1))
-            sb_all = np.flatnonzero(ok & (lng > 3))
-            # longer boxes: every pixel of the box is tested against the triangle's edge
-            # coefficients (computed once per triangle, :meth:`_eval_boxes`), in chunks of at
-            # most _PAIR_CHUNK pairs (a big mesh close to the lens could otherwise need gigabytes)
-            counts_all = nu.take(sb_all) * nv.take(sb_all)
-            cum = np.cumsum(counts_all)
-            cuts = np.searchsorted(cum, np.arange(_PAIR_CHUNK, int(cum[-1]) if len(cum) else 0, _PAIR_CHUNK))
-            t_eval = 0.0
-            for sb in np.split(sb_all, cuts):
-                if not len(sb):
-                    continue
-                te = time.perf_counter()
-                ii = idx.take(sb, axis=1)
-                evaluate(ii + voff if voff else ii, None, t_big.take(sb) + base,
-                         boxes=(corner.take(sb), nu.take(sb), nv.take(sb)))
-                t_eval += time.perf_counter() - te
-            self._acc("pixel tests", t_eval)
-            t3 += t_eval
-        self._acc("candidates", time.perf_counter() - t3)
+    def _large_box_candidates(self, vs: _VertexStage, t_big: np.ndarray, voff: int, base: int, add,
+                              evaluate) -> float:
+        """Triangles ``t_big`` with larger boxes (or crossing the image border): exact float boxes with the
+        distortion margin; boxes of at most 3 x 3 pixels become candidate blocks, longer ones have every
+        pixel tested at once (:meth:`_long_box_tests`). Returns the seconds spent in those pixel tests."""
+        W, H, HW = self.width, self.height, self.width * self.height
+        idx = vs.FT.take(t_big, axis=1)
+        U, Vv = vs.u.take(idx), vs.v.take(idx)                  # (3, n)
+        umin, umax = U.min(axis=0), U.max(axis=0)
+        vmin, vmax = Vv.min(axis=0), Vv.max(axis=0)
+        du, dv = umax - umin, vmax - vmin
+        marg = np.float32(self._c) * (du * du + dv * dv) + np.float32(_EPS_PX)
+        u0 = np.maximum(np.ceil(umin - marg), 0).astype(np.intp)
+        u1 = np.minimum(np.floor(umax + marg), W - 1).astype(np.intp)
+        v0 = np.maximum(np.ceil(vmin - marg), 0).astype(np.intp)
+        v1 = np.minimum(np.floor(vmax + marg), H - 1).astype(np.intp)
+        nu, nv = u1 - u0 + 1, v1 - v0 + 1
+        lng = np.maximum(nu, nv)
+        sht = np.minimum(nu, nv)
+        corner = v0 * W + u0
+        ok = sht > 0
+        # blocks from the box corner (extra pixels of a block are tested exactly too;
+        # candidates past the last row map to the dummy pixel)
+        for k, want in ((4, ok & (lng <= 2)), (6, ok & (lng == 3) & (sht < 3)), (9, ok & (sht == 3) & (lng == 3))):
+            sb = np.flatnonzero(want)
+            if not len(sb):
+                continue
+            b = corner.take(sb)[None, :]
+            if k == 4:
+                pix = b + self._offsets[2]
+            elif k == 6:                                    # 3 x 2 along the long side
+                pix = b + np.where(nu.take(sb) == 3, self._offsets["3x2"], self._offsets["2x3"])
+            else:
+                pix = b + self._offsets[3]
+            np.minimum(pix, HW, out=pix)
+            add(k, t_big.take(sb), pix, idx.take(sb, axis=1))
+        sb_all = np.flatnonzero(ok & (lng > 3))
+        t_eval = self._long_box_tests(idx, t_big, sb_all, corner, nu, nv, voff, base, evaluate)
+        self._acc("pixel tests", t_eval)
+        return t_eval
+
+    @staticmethod
+    def _long_box_tests(idx, t_big, sb_all, corner, nu, nv, voff: int, base: int, evaluate) -> float:
+        """Boxes longer than 3 pixels (positions ``sb_all``): every pixel of the box is tested against the
+        triangle's edge coefficients (computed once per triangle, :meth:`_eval_boxes`), in chunks of at
+        most _PAIR_CHUNK pairs (a big mesh close to the lens could otherwise need gigabytes). Returns the
+        seconds spent."""
+        counts_all = nu.take(sb_all) * nv.take(sb_all)
+        cum = np.cumsum(counts_all)
+        cuts = np.searchsorted(cum, np.arange(_PAIR_CHUNK, int(cum[-1]) if len(cum) else 0, _PAIR_CHUNK))
+        t_eval = 0.0
+        for sb in np.split(sb_all, cuts):
+            if not len(sb):
+                continue
+            te = time.perf_counter()
+            ii = idx.take(sb, axis=1)
+            evaluate(ii + voff if voff else ii, None, t_big.take(sb) + base,
+                     boxes=(corner.take(sb), nu.take(sb), nv.take(sb)))
+            t_eval += time.perf_counter() - te
+        return t_eval
 
     def _eval_tris(self, xy: np.ndarray, iz: np.ndarray, idx: np.ndarray, pix: np.ndarray, want_depth: bool):
         """Exact pixel tests for fast-path triangles.

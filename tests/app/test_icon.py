@@ -7,7 +7,7 @@ import sys
 from importlib.resources import files
 
 import numpy as np
-from PySide6 import QtCore, QtGui, QtSvg, QtWidgets
+from PySide6 import QtCore, QtGui, QtSvg
 
 from evpose.app.main import ICON_FILES, app_icon
 
@@ -62,9 +62,16 @@ def test_app_icon_has_pixels(qapp):
     assert not pm.isNull() and as_array(pm.toImage())[..., 3].max() == 255
 
 
-class FakeWindow(QtWidgets.QMainWindow):
-    """Stands in for MainWindow in ``run_gui`` (no scene, no GL view, no settings written)."""
+RUN_GUI_WITH_A_FAKE_WINDOW = r"""
+import sys
+import numpy as np
+from PySide6 import QtGui, QtWidgets
+import evpose.app.main_window
+from evpose.app.main import app_icon, run_gui
 
+
+class FakeWindow(QtWidgets.QMainWindow):
+    # stands in for MainWindow in run_gui: no scene, no GL view, no settings written
     icon_at_creation = None
 
     def __init__(self):
@@ -75,28 +82,34 @@ class FakeWindow(QtWidgets.QMainWindow):
         self.session = None
         self.frame = None
 
-    def spacetime_drawn(self) -> bool:
+    def spacetime_drawn(self):
         return True
 
 
-def test_run_gui_sets_the_window_icon(qapp, monkeypatch):
-    import evpose.app.main_window
-    from evpose.app.main import run_gui
+def pixels(icon):
+    img = icon.pixmap(48, 48).toImage().convertToFormat(QtGui.QImage.Format_RGBA8888)
+    return np.frombuffer(img.constBits(), np.uint8).copy()
 
-    monkeypatch.setattr(evpose.app.main_window, "MainWindow", FakeWindow)
-    monkeypatch.setattr(sys, "excepthook", sys.excepthook)          # run_gui installs its own: restored after
-    org, name = QtCore.QCoreApplication.organizationName(), QtCore.QCoreApplication.applicationName()
-    qapp.setWindowIcon(QtGui.QIcon())
-    try:
-        assert run_gui(None, quit_after=0) == 0
-    finally:
-        QtCore.QCoreApplication.setOrganizationName(org)
-        QtCore.QCoreApplication.setApplicationName(name)
-    icon = FakeWindow.icon_at_creation
-    assert icon is not None and not icon.isNull()
-    assert icon.cacheKey() == qapp.windowIcon().cacheKey()
-    assert np.array_equal(as_array(icon.pixmap(48, 48).toImage()), as_array(app_icon().pixmap(48, 48).toImage()))
-    qapp.setWindowIcon(QtGui.QIcon())
+
+evpose.app.main_window.MainWindow = FakeWindow
+assert run_gui(None, quit_after=0) == 0
+icon = FakeWindow.icon_at_creation
+assert icon is not None and not icon.isNull(), "no window icon when the main window was created"
+assert np.array_equal(pixels(icon), pixels(app_icon())), "the window icon is not evpose's icon"
+print("icon ok")
+"""
+
+
+def test_run_gui_sets_the_window_icon(tmp_path):
+    """In a process of its own: ``run_gui`` runs and quits the application's event loop, after which
+    Qt starts no further worker threads in that process (it would poison every later GUI test)."""
+    import os
+    import subprocess
+
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen", XDG_CONFIG_HOME=str(tmp_path))
+    proc = subprocess.run([sys.executable, "-c", RUN_GUI_WITH_A_FAKE_WINDOW], capture_output=True, text=True,
+                          env=env, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0 and "icon ok" in proc.stdout, proc.stderr[-2000:]
 
 
 def test_package_data_installs_the_icon():

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 import evpose.core.data.atomic as atomic
-from evpose.core.export import common
+from evpose.core.export import pool
+from evpose.core.export.journal import Journal
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc/self/fd")
 
@@ -70,7 +71,6 @@ class Recorder:
         monkeypatch.setattr(os, "rename", rename)
         monkeypatch.setattr(os, "write", write)
         monkeypatch.setattr(atomic, "sync_filesystem", syncfs)
-        monkeypatch.setattr(common, "sync_filesystem", syncfs)
 
     def _journal_text(self) -> str | None:
         if self.journal is None or not self.journal.exists():
@@ -167,7 +167,7 @@ def test_export_batch_mode_syncs_files_before_journaling_them(tiny_scene_dir, tm
 
     out = tmp_path / "ex"
     journal = out / ".evpose" / "journal.jsonl"
-    monkeypatch.setattr(common, "FLUSH_WINDOWS", 16)
+    monkeypatch.setattr(pool, "FLUSH_WINDOWS", 16)
     rec = Recorder(monkeypatch, journal)
     s = export_scene(tiny_scene_dir, fmt, out, window_us=5_000)
     assert s.written > 40
@@ -278,7 +278,7 @@ def test_journal_cut_at_every_byte_of_its_last_line(tiny_scene_dir, tmp_path):
             ref = dict(files)
             ref.pop(Path("export_manifest.json"))
             assert got == ref, k
-            recs = common.Journal(journal).load()
+            recs = Journal(journal).load()
             assert sorted(recs) == sorted(json.loads(x)["i"] for x in lines), k
             for x in journal.read_bytes().splitlines():      # the cut stays alone on its line: never merged
                 if x != cut.rstrip(b"\n"):

@@ -15,8 +15,8 @@ from evpose.core.data.events import Cancelled
 from evpose.core.data.scene import Scene
 from evpose.core.document.corrections import ReviewMark
 from evpose.core.export import ExportError, export_scene
-from evpose.core.export.common import UNLABELED_AFTER, UNLABELED_BEFORE, verified_mask
-from evpose.core.label.annotate import Window
+from evpose.core.export.windows import UNLABELED_AFTER, UNLABELED_BEFORE, verified_mask
+from evpose.core.label.windows import Window
 
 
 # ----------------------------------------------------------------------------------------- helpers

@@ -4,12 +4,14 @@ topics/files, atomicity (failure, cancel, Ctrl-C), parsers of calibration files.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 from test_importers import (  # noqa: F401
     assert_events_equal,
     assert_traj_equal,
+    epose_windows,
     no_leftovers,
     read_scene,
     src,
@@ -17,12 +19,14 @@ from test_importers import (  # noqa: F401
     write_epose_export,
     write_npz,
     write_rpg,
+    write_ycbev,
 )
 
 from evpose.core.data.events import Cancelled, EventArray
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.importers import ImportFailure, import_scene
-from evpose.core.importers.common import guess_time_unit, parse_yaml_subset
+from evpose.core.importers.calibration_formats import load_yaml_mapping
+from evpose.core.importers.time_guess import guess_time_unit
 
 
 def _npz(src, tmp_path, **kw):
@@ -317,7 +321,7 @@ def test_empty_topics_and_files(src, tmp_path):
 
 
 def test_bag_header_stamps_zero_fall_back_to_record_time(src, tmp_path):
-    from evpose.core.importers.epose_bag import encode_pose_stamped, parse_pose_stamped
+    from evpose.core.importers.epose_bag_codec import encode_pose_stamped, parse_pose_stamped
 
     t, v = parse_pose_stamped(encode_pose_stamped(1_500_000_000_123_456_789, [1, 2, 3], [0, 0, 0, 1], frame_id="b"))
     assert t == 1_500_000_000_123_457 and v.tolist() == [1, 2, 3, 0, 0, 0, 1]
@@ -400,7 +404,8 @@ def test_epose_export_matlab_v73(src, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ parsers
-def test_yaml_subset_parser(tmp_path):
+def test_yaml_calibration_is_read_with_a_yaml_library(tmp_path):
+    """PyYAML reads block and flow lists, comments, quoted scalars and OpenCV's ``%YAML:1.0`` header."""
     text = """%YAML:1.0
 ---
 # comment
@@ -409,27 +414,103 @@ intrinsics:
     camera_matrix: [553.5, 553.4, 346.6, 216.5]   # fx fy cx cy
     distortion_coeffs:
     - -0.094
-    - 0.149
+    - 1e-05
+    - 0
+    - 0
     model: 'pinhole'
     nested:
     - [1, 2]
     - [3, 4.5]
+    resolution: [346, 260]
 empty:
 flag: true
 """
-    d = parse_yaml_subset(text, "c.yaml")
+    d = load_yaml_mapping(text, "c.yaml")
     assert d["intrinsics"]["cam0"]["camera_matrix"] == [553.5, 553.4, 346.6, 216.5]
-    assert d["intrinsics"]["cam0"]["distortion_coeffs"] == [-0.094, 0.149]
     assert d["intrinsics"]["cam0"]["nested"] == [[1, 2], [3, 4.5]] and d["intrinsics"]["cam0"]["model"] == "pinhole"
     assert d["empty"] is None and d["flag"] is True
-    with pytest.raises(ImportFailure, match=r"c\.yaml: line 3: -: unexpected indentation"):
-        parse_yaml_subset("a:\n  b: 1\n    c: 2\n", "c.yaml")
-    with pytest.raises(ImportFailure, match=r"c\.yaml: line 1: -: unterminated"):
-        parse_yaml_subset("a: [1, 2\n", "c.yaml")
+    from evpose.core.importers.calibration import load_camera
+    from evpose.core.importers.report import ImportContext
+
+    (tmp_path / "c.yaml").write_text(text)
+    cam = load_camera(tmp_path / "c.yaml", ImportContext("t", [], log=None))
+    assert cam.K[0, 0] == 553.5 and cam.K[1, 2] == 216.5 and (cam.width, cam.height) == (346, 260)
+    np.testing.assert_array_equal(cam.dist, [-0.094, 1e-05, 0, 0])     # YAML 1.1 reads 1e-05 as text: still a number
+
+
+@pytest.mark.parametrize("text, where", [
+    ("intrinsics:\n  cam0:\n\tcamera_matrix: [1, 2, 3, 4]\n", r"line 3, column 1: -: not valid YAML"),
+    ("intrinsics:\n  cam0:\n    camera_matrix: [1, 2\n",
+     r"line 4, column 1: -: not valid YAML \(expected ',' or '\]'.* flow sequence that starts at line 3\)"),
+    ("a:\n  b: 1\n    c: 2\n", r"line 3, column \d+: -: not valid YAML"),
+    ("intrinsics: {cam0: [1, 2}\n", r"line 1, column \d+: -: not valid YAML"),
+    ("# nothing but a comment\n", r"\(file\): -: empty YAML document"),
+    ("- 1\n- 2\n", r"\(file\): -: expected a mapping at the top level, got a list"),
+])
+def test_malformed_yaml_names_the_file_and_line(tmp_path, text, where):
+    from evpose.core.importers.calibration import load_camera
+    from evpose.core.importers.report import ImportContext
+
+    (tmp_path / "cam.yaml").write_text(text)
+    with pytest.raises(ImportFailure, match=r"cam\.yaml: " + where):
+        load_camera(tmp_path / "cam.yaml", ImportContext("t", [], log=None))
+
+
+@pytest.mark.parametrize("cam0, record, field, message", [
+    ("[1, 2, 3, 4]", "intrinsics", "cam0", "expected a mapping, got a list"),
+    ("{camera_matrix: hello, resolution: [346, 260]}", "intrinsics.cam0", "camera_matrix",
+     "expected numbers, got 'hello'"),
+    ("{camera_matrix: {fx: 1}, resolution: [346, 260]}", "intrinsics.cam0", "camera_matrix",
+     "expected numbers, got a mapping"),
+    ("{camera_matrix: [1, 1, true, 1], resolution: [346, 260]}", "intrinsics.cam0", "camera_matrix",
+     "expected numbers, got True"),
+    ("{camera_matrix: [[[1]], 1, 1, 1], resolution: [346, 260]}", "intrinsics.cam0", "camera_matrix",
+     "expected a list of numbers, got lists nested too deeply"),
+    ("{camera_matrix: [1, 1, 1], resolution: [346, 260]}", "intrinsics.cam0", "camera_matrix",
+     "expected \\[fx, fy, cx, cy\\], got 3 numbers"),
+    ("{camera_matrix: [1, 1, 1, 1], distortion_coeffs: [a, b, c, d], resolution: [346, 260]}", "intrinsics.cam0",
+     "distortion_coeffs", "expected numbers, got 'a'"),
+    ("{camera_matrix: [1, 1, 1, 1], resolution: [wide, 260]}", "intrinsics.cam0", "resolution",
+     "expected an integer number of pixels, got 'wide'"),
+    ("{camera_matrix: [1, 1, 1, 1], resolution: [[346], 260]}", "intrinsics.cam0", "resolution",
+     "expected an integer number of pixels, got a list"),
+    ("{camera_matrix: [1, 1, 1, 1], distortion_model: [radtan]}", "intrinsics.cam0", "distortion_model",
+     "\"\\['radtan'\\]\" is not supported"),
+])
+def test_yaml_with_unexpected_types_names_the_file_and_field(tmp_path, cam0, record, field, message):
+    """Values of the wrong type end in one error naming the file, the entry and the field -- never a
+    TypeError, and never a silently wrong camera (``true`` is not 1.0)."""
+    from evpose.core.importers.calibration import load_camera
+    from evpose.core.importers.report import ImportContext
+
+    (tmp_path / "cam.yaml").write_text(f"intrinsics:\n  cam0: {cam0}\n")
+    with pytest.raises(ImportFailure, match=rf"cam\.yaml: {re.escape(record)}: {field}: {message}"):
+        load_camera(tmp_path / "cam.yaml", ImportContext("t", [], log=None))
+
+
+@pytest.mark.parametrize("bomb, message", [
+    ("wide", "more than 64 numbers"),              # a list of 1000 aliases of a list of 1000 numbers
+    ("deep", "lists nested too deeply"),           # aliases of aliases: 10**9 numbers nine levels deep
+])
+def test_yaml_alias_bomb_is_refused_quickly(tmp_path, bomb, message):
+    """Aliases nest references without copying: the checks stop long before anything is expanded."""
+    from evpose.core.importers.calibration import load_camera
+    from evpose.core.importers.report import ImportContext
+
+    if bomb == "wide":
+        lines, top = ["a0: &a0 [" + ", ".join(["1"] * 1000) + "]", "m: &m [" + ", ".join(["*a0"] * 1000) + "]"], "m"
+    else:
+        lines = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+        lines, top = lines + [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 9)], "a8"
+    lines += ["intrinsics:", "  cam0:", f"    camera_matrix: *{top}", "    resolution: [346, 260]"]
+    (tmp_path / "cam.yaml").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ImportFailure, match=rf"cam\.yaml: intrinsics\.cam0: camera_matrix: .*{message}"):
+        load_camera(tmp_path / "cam.yaml", ImportContext("t", [], log=None))
 
 
 def test_camera_file_formats(src, tmp_path):
-    from evpose.core.importers.common import ImportContext, load_camera
+    from evpose.core.importers.calibration import load_camera
+    from evpose.core.importers.report import ImportContext
 
     ctx = ImportContext("t", [], log=None)
     K, d = src.cam.K, src.cam.dist
@@ -445,14 +526,125 @@ def test_camera_file_formats(src, tmp_path):
     (tmp_path / "bad.json").write_text('{"K": [[1, 0, 0], [0, 1, 0]], "width": 3, "height": 3}')
     with pytest.raises(ImportFailure, match=r"bad\.json: \(file\): K/dist: K: expected a 3x3"):
         load_camera(tmp_path / "bad.json", ctx)
+    (tmp_path / "inf.json").write_text('{"K": [[1, 0, 1], [0, 1, 1], [0, 0, 1]], "width": Infinity, "height": 3}')
+    with pytest.raises(ImportFailure, match=r"inf\.json: \(file\): width: expected an integer number of pixels"):
+        load_camera(tmp_path / "inf.json", ctx)
+    (tmp_path / "cv.json").write_text('{"camera_matrix": [[1, 0, 1], [0, 1, 1], [0, 0, 1]], "img_size": [3, 3], '
+                                      '"distortion_coefficients": [["k1"]]}')
+    with pytest.raises(ImportFailure, match=r"cv\.json: \(file\): distortion_coefficients: expected numbers, got 'k1'"):
+        load_camera(tmp_path / "cv.json", ctx)
 
 
+# ------------------------------------------------------------------------------------------------ input errors
+def test_npz_T_base_cam_3x4_imports(src, tmp_path):
+    """(N, 3, 4) transforms (the last row implied) are accepted, as the format says."""
+    p = _npz(src, tmp_path, T_base_cam=True)
+    with np.load(p) as z:
+        d = dict(z)
+    d["T_base_cam"] = d["T_base_cam"][:, :3, :]
+    np.savez(p, **d)
+    import_scene("npz", [p], tmp_path / "scene", log=None)
+    _, traj, _, _ = read_scene(tmp_path / "scene")
+    assert_traj_equal(traj, src.traj)
 
+
+def test_npz_width_height_not_integers(src, tmp_path):
+    p = _npz(src, tmp_path, width=np.array(["wide"]))
+    with pytest.raises(ImportFailure, match=r"rec\.npz: \(archive\): width/height: expected integers, got "):
+        import_scene("npz", [p], tmp_path / "scene", log=None)
+    assert not (tmp_path / "scene").exists()
+
+
+def test_objects_T_file_nested_too_deeply(src, tmp_path):
+    p = _npz(src, tmp_path)
+    mesh = src.man.objects[0].mesh
+    (tmp_path / "T.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ImportFailure, match=r"T\.json: \(file\): T_base_obj: JSON nested too deeply"):
+        import_scene("npz", [p], tmp_path / "scene", objects=f"box={mesh}:{tmp_path / 'T.json'}", log=None)
+
+
+def test_epose_export_singular_pose_block_after_repair(src, tmp_path):
+    """A pose block with a zero rotation passes --repair's projection but cannot give a camera pose: refused,
+    naming the window and the object (not a LinAlgError)."""
+    wins = [b for _, b in epose_windows(src, 10_000, 6)]
+    labels = src.labels(np.array(wins, np.int64)).copy()
+    labels[3, 1, :3, :3] = 0.0
+    write_epose_export(tmp_path / "w", src, n_windows=6, labels=labels)
+    with pytest.raises(ImportFailure, match=r"w: frame 3: T_cam_obj \[cylinder\]: singular matrix"):
+        import_scene("epose-export", [tmp_path / "w"], tmp_path / "scene", objects=src.objects_arg, width=173,
+                     height=130, repair=True, log=None)
+    no_leftovers(tmp_path)
+
+
+def test_epose_export_cls_index_not_finite(src, tmp_path):
+    write_epose_export(tmp_path / "w", src, n_windows=3, cls=(1, float("nan"), 3))
+    with pytest.raises(ImportFailure, match=r"0001_data\.mat: window 1: cls_index: not finite"):
+        import_scene("epose-export", [tmp_path / "w"], tmp_path / "scene", objects=src.objects_arg, width=173,
+                     height=130, log=None)
+
+
+def test_epose_export_intrinsics_only_in_later_windows(src, tmp_path):
+    """The first window without ``intrinsicMatrix`` (calibration from --camera) and later ones with it."""
+    import scipy.io
+
+    write_epose_export(tmp_path / "w", src, n_windows=3)
+    first = tmp_path / "w" / "0001_data.mat"
+    d = {k: v for k, v in scipy.io.loadmat(str(first)).items() if not k.startswith("__") and k != "intrinsicMatrix"}
+    scipy.io.savemat(first, d)
+    import_scene("epose-export", [tmp_path / "w"], tmp_path / "scene", objects=src.objects_arg,
+                 camera=str(src.cam_json), log=None)
+    assert (tmp_path / "scene" / "scene.toml").is_file()
+
+
+def test_epose_export_classes_not_a_number(src, tmp_path):
+    write_epose_export(tmp_path / "w", src, n_windows=1)
+    with pytest.raises(ImportFailure, match=r"--classes: inf=box: cls: not a number"):
+        import_scene("epose-export", [tmp_path / "w"], tmp_path / "scene", objects=src.objects_arg, classes="inf=box",
+                     log=None)
+
+
+@pytest.mark.parametrize("what", ["deep", "key", "huge_time"])
+def test_ycbev_malformed_annotations(src, tmp_path, what):
+    """Malformed BOP JSON ends in one error naming the file and the field (no RecursionError, StopIteration or
+    OverflowError)."""
+    seqd, _, _ = write_ycbev(tmp_path / "y", src, n_frames=4)
+    if what == "deep":
+        (seqd / "scene_gt.json").write_text("[" * 100_000 + "]" * 100_000)
+        pattern = r"scene_gt\.json: \(file\): -: JSON nested too deeply"
+    elif what == "key":
+        gt = json.loads((seqd / "scene_gt.json").read_text())
+        gt["\u00b2"] = gt.pop("1")                                  # '²' is a digit to str.isdigit, not to int()
+        (seqd / "scene_gt.json").write_text(json.dumps(gt))
+        pattern = r"scene_gt\.json: image '\u00b2': key: image ids must be integers"
+    else:
+        (seqd / "scene_times.json").write_text(json.dumps({str(i): {"t_label_us": 2**70} for i in range(4)}))
+        pattern = r"scene_times\.json: \(file\): t_label_us: outside the int64 µs range"
+    with pytest.raises(ImportFailure, match=pattern):
+        import_scene("ycbev", [seqd], tmp_path / "scene", log=None)
+
+
+@pytest.mark.parametrize("scenes, record, field", [
+    ({"s": ["box"]}, "scenes/s", "-"),
+    ({"s": {"objects": {"box": [["a", "b"], ["c", "d"]]}}}, "s/box", "T_base_obj"),
+    ({"s": {"objects": {"box": [[1, 0, 0, 0], [0, 1, 0]]}}}, "s/box", "T_base_obj"),
+])
+def test_malformed_epose_scenes_json(src, tmp_path, scenes, record, field):
+    from evpose.core.importers.epose_assets import load_epose_assets
+    from evpose.core.importers.report import ImportContext
+
+    assets = tmp_path / "assets"
+    (assets / "models").mkdir(parents=True)
+    (assets / "camera_davis346.json").write_text(src.cam_json.read_text())
+    (assets / "scenes.json").write_text(json.dumps({"scenes": scenes}))
+    with pytest.raises(ImportFailure, match=rf"scenes\.json: {re.escape(record)}: {re.escape(field)}: "):
+        load_epose_assets(ImportContext("t", [], log=None), assets, "s", None)
 
 
 def test_event_sink_bounded_stream_merge():
     """Overlapping chunks over a long stream: output sorted and complete, memory held back stays bounded."""
-    from evpose.core.importers.common import EventSink, ImportContext, ImportOptions
+    from evpose.core.importers.event_sink import EventSink
+    from evpose.core.importers.options import ImportOptions
+    from evpose.core.importers.report import ImportContext
 
     class Collect:
         def __init__(self):

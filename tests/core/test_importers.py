@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evpose.core.data.events import EventStore
+from evpose.core.data.event_store import EventStore
 from evpose.core.data.geometry import inv_T, make_T, pose_error
-from evpose.core.data.scene import Scene, load_manifest
+from evpose.core.data.manifest_reader import load_manifest
+from evpose.core.data.scene import Scene
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.importers import REPORT_FILENAME, ImportFailure, import_scene
 
@@ -106,7 +107,7 @@ def write_bag(path: Path, ev, traj, *, msg_events=20_000, width=None, height=Non
     """ROS1 bag with rosbags' writer; messages serialised by rosbags (per-event objects) unless numpy_encode."""
     from rosbags.rosbag1 import Writer
 
-    from evpose.core.importers.epose_bag import (
+    from evpose.core.importers.epose_bag_codec import (
         EVENT_ARRAY_TYPE,
         POSE_STAMPED_TYPE,
         dvs_typestore,
@@ -301,7 +302,7 @@ def write_ycbev(root: Path, src: Src, *, n_frames=20, c2ev=True, seq="seq01"):
     import trimesh
     import zstandard
 
-    from evpose.core.importers.ycbev import pack_events
+    from evpose.core.importers.ycbev_files import pack_events
 
     seqd = root / seq
     seqd.mkdir(parents=True, exist_ok=True)
@@ -376,7 +377,12 @@ def test_bag_compressed_chunks(src, tmp_path, compression):
 
 
 def test_event_array_parser_matches_rosbags(src):
-    from evpose.core.importers.epose_bag import EVENT_ARRAY_TYPE, dvs_typestore, encode_event_array, parse_event_array
+    from evpose.core.importers.epose_bag_codec import (
+        EVENT_ARRAY_TYPE,
+        dvs_typestore,
+        encode_event_array,
+        parse_event_array,
+    )
 
     ts = dvs_typestore()
     T = ts.types
@@ -404,7 +410,7 @@ def test_event_array_parser_matches_rosbags(src):
 
 
 def test_ros_time_rounding():
-    from evpose.core.importers.common import ros_time_to_us
+    from evpose.core.importers.time_units import ros_time_to_us
 
     np.testing.assert_array_equal(ros_time_to_us([1, 1, 1, 1, 0], [499, 500, 1_499, 999_999_999, 0]),
                                   [1_000_000, 1_000_001, 1_000_001, 2_000_000, 0])
@@ -470,8 +476,8 @@ def test_bag_assets_typo_refused_then_repaired(src, assets_dir, tmp_path):
 def test_epose_name_matching(assets_dir, tmp_path):
     import csv
 
-    from evpose.core.importers.common import ImportContext
-    from evpose.core.importers.epose_bag import _time_shift, match_name
+    from evpose.core.importers.epose_assets import _time_shift, match_name
+    from evpose.core.importers.report import ImportContext
 
     scenes = json.loads((assets_dir / "scenes.json").read_text())["scenes"]
     assert match_name("bleach", scenes, file="f", record="r", fld="f")[0] == "bleach_cleanser"
@@ -597,7 +603,7 @@ def test_rpg_round_trip(src, tmp_path):
 
 
 def test_rpg_exact_decimal_seconds(tmp_path):
-    from evpose.core.importers.rpg import mantissa_to_us, parse_columns
+    from evpose.core.importers.rpg_text import mantissa_to_us, parse_columns
 
     text = (b"0.0000005 1 2 1\n0.0000015 3 4 0\n1468940293.951234567 5 6 1\n-0.0000005 0 0 0\n"
             b"12 7 8 1\n0.000001 9 9 0\n")
@@ -728,7 +734,7 @@ def test_bag_unfamiliar_event_definition_uses_rosbags(src, tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from evpose.core.importers.epose_bag import (
+    from evpose.core.importers.epose_bag_codec import (
         EVENT_ARRAY_MSG,
         EVENT_ARRAY_TYPE,
         POSE_STAMPED_TYPE,

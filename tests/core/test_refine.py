@@ -84,7 +84,8 @@ def test_refine_box_on_tiny_scene(tiny):
 def test_refine_real_mesh(models_dir, tmp_path_factory):
     from evpose_testing import half_davis_camera
 
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     out = tmp_path_factory.mktemp("refine") / "sugar"
     generate(out, SynthConfig(objects=("sugar_box",), mesh_dir=str(models_dir), trajectory="B", speed_mps=0.5,

@@ -8,7 +8,7 @@ from evpose.app.cli.export import summary_text
 from evpose.core.document.corrections import Corrections, ReviewMark
 from evpose.core.document.review import MarkState, effective_status, grid_window, insert_mark, normalize_marks
 from evpose.core.export import export_scene
-from evpose.core.export.common import (
+from evpose.core.export.windows import (
     REVIEW_MIXED,
     REVIEW_NO_LABEL,
     REVIEW_PARTLY,
@@ -16,7 +16,7 @@ from evpose.core.export.common import (
     review_usage,
     verified_mask,
 )
-from evpose.core.label.annotate import Window
+from evpose.core.label.windows import Window
 from evpose.core.session.model import Session
 
 
@@ -224,7 +224,7 @@ def test_export_counts_unused_marked_windows_and_says_why(scene_copy, tmp_path):
     s2 = export_scene(scene_copy, "epose", tmp_path / "out2", only_verified=True, objects="box", include_stale=True)
     assert s2.written == 5 and s2.review_unused_reasons == {REVIEW_PARTLY: 2, REVIEW_MIXED: 1}
     # ... and it cannot be mixed into the first folder (its fingerprint differs)
-    from evpose.core.export.common import ExportError
+    from evpose.core.export import ExportError
 
     with pytest.raises(ExportError):
         export_scene(scene_copy, "epose", out, only_verified=True, objects="box", include_stale=True)

@@ -179,12 +179,16 @@ def test_a_group_is_one_change_with_all_its_fields_and_a_failed_group_none(sessi
         session.add_review("flagged")
         session.nudge_hand_eye(trans_mm=(0, 1, 0), mergeable=False)
     assert rec.take() == ([doc("clock", "reviews", "hand_eye")],) * 2
+    with session.history.group("one field changes"):
+        session.set_offset_correction_us(20, mergeable=False)
+        session.reset("box")                               # already the identity: not a field of the step
+    assert rec.take() == ([doc("clock")],) * 2
     with pytest.raises(RuntimeError):
         with session.history.group("fails"):
             session.set_offset_correction_us(99, mergeable=False)
             raise RuntimeError("boom")
-    assert session.scene.corrections.offset_us == 10       # rolled back
-    assert rec.take() == ([], []) and len(session.history) == 1
+    assert session.scene.corrections.offset_us == 20       # rolled back
+    assert rec.take() == ([], []) and len(session.history) == 2
 
 
 def test_save_emits_only_the_history_state(session):

@@ -22,9 +22,12 @@ from evpose.core.align.minima_baseline import sync_minima_baseline
 from evpose.core.align.proxy import MotionProxy, motion_proxy
 from evpose.core.align.sync_result import SLOW_STD_NOTE_US, SyncResult
 from evpose.core.data.camera import CameraModel
-from evpose.core.data.events import EventArray, EventWriter, write_events_h5
-from evpose.core.data.scene import Scene, SceneManifest
-from evpose.core.data.trajectory import ClockModel, Trajectory
+from evpose.core.data.event_writer import EventWriter, write_events_h5
+from evpose.core.data.events import EventArray
+from evpose.core.data.manifest import SceneManifest
+from evpose.core.data.scene import Scene
+from evpose.core.data.clock import ClockModel
+from evpose.core.data.trajectory import Trajectory
 from evpose.core.document.history import History
 
 T0_POSE = 1_700_000_000_000_000   # epoch pose clock: precision problems would show
@@ -380,7 +383,8 @@ def test_masked_ncc_matches_direct_computation():
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """A low-resolution (87x65) rendered scene: for synchronisation only the event rate matters."""
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     cam = CameraModel.davis346()
     s = 87 / 346

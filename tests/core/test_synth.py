@@ -4,23 +4,18 @@ import json
 import numpy as np
 import pytest
 
+from evpose.core.data.clock import ClockModel
 from evpose.core.data.event_store import EventStore
 from evpose.core.data.events import Cancelled
 from evpose.core.data.geometry import pose_error, rotation_angle
 from evpose.core.data.scene import Scene
-from evpose.core.data.clock import ClockModel
 from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 from evpose.core.label.windows import time_windows
-from evpose.core.sim.synth import (
-    NOISE_STEP_US,
-    SynthConfig,
-    _render_times,
-    generate,
-    load_ground_truth,
-    make_motion,
-    make_trajectory,
-)
+from evpose.core.sim.motion import make_motion, make_trajectory
+from evpose.core.sim.simulate import NOISE_STEP_US, render_times
+from evpose.core.sim.synth import generate, load_ground_truth
+from evpose.core.sim.synth_config import SynthConfig
 
 
 def test_scene_files_and_ground_truth(tiny_scene_dir):
@@ -130,13 +125,13 @@ def test_render_schedule_keeps_event_timing():
     clock = ClockModel(20_000, 0.0, 0)
     e0 = traj.t_first_us + 300_000 - 20_000
     e1 = e0 + 3_000_000
-    steps, render = _render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0)
+    steps, render = render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0)
     assert np.all(np.diff(steps) > 0) and steps[0] > e0 and steps[-1] == e1
     assert np.max(np.diff(np.r_[e0, steps])) <= NOISE_STEP_US           # noise even while still
     v, w, _ = traj.speed()
     seg_ev = clock.event_time(traj.t_us)
     k = np.searchsorted(seg_ev, steps, side="left") - 1
-    px_s = 300.0 * (v / 0.4 + w)              # the image speed bound _render_times uses
+    px_s = 300.0 * (v / 0.4 + w)              # the image speed bound render_times uses
     moving = px_s[np.clip(k, 0, len(v) - 1)] > 1e-6
     mv = px_s > 1e-6
     starts = seg_ev[:-1][mv & ~np.r_[False, mv[:-1]]]
@@ -145,7 +140,7 @@ def test_render_schedule_keeps_event_timing():
     assert not render[~moving & ~np.isin(steps, starts)].any(), "nothing is rendered while standing still"
     assert len(starts) >= 2 and np.isin(starts, steps[render]).all(), "a frame where each motion starts"
     # frames at most max_px apart in the image, and at most max_interval_us apart when asked
-    dense, r2 = _render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0, max_interval_us=1000)
+    dense, r2 = render_times(traj, clock, e0, e1, 300.0, 0.4, 1.0, max_interval_us=1000)
     gaps = np.diff(dense[r2])
     assert r2.sum() > render.sum() and np.median(gaps) <= 1000
 

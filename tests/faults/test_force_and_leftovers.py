@@ -28,8 +28,8 @@ from fault_harness import EVPOSE, assert_clean_error, assert_ok, run_cli, snapsh
 def sources(tiny_scene_dir, tmp_path_factory):
     """The tiny scene as published-format sources: an rpg folder, an npz file, a dsec folder
     (events.h5 + trajectory.csv + camera.json) and a camera JSON."""
-    from evpose.core.data.events import EventStore
-    from evpose.core.data.scene import load_manifest
+    from evpose.core.data.event_store import EventStore
+    from evpose.core.data.manifest_reader import load_manifest
     from evpose.core.data.trajectory import Trajectory
 
     root = tmp_path_factory.mktemp("force_sources")
@@ -57,7 +57,7 @@ def sources(tiny_scene_dir, tmp_path_factory):
 
     dsec = root / "dsec"
     dsec.mkdir()
-    from evpose.core.data.events import write_events_h5
+    from evpose.core.data.event_writer import write_events_h5
 
     write_events_h5(dsec / "events.h5", ev)
     traj.save_csv(dsec / "trajectory.csv")
@@ -152,7 +152,8 @@ def test_export_force_keeps_files_the_user_added(tiny_scene_dir, tmp_path):
 # ------------------------------------------------------------------------------------------- --force, API
 def test_force_replaces_an_earlier_evpose_scene_and_refuses_what_is_not_ours(sources, tmp_path):
     from evpose.core.importers import ImportFailure, import_scene
-    from evpose.core.sim.synth import SynthConfig, generate
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
 
     out = tmp_path / "scene"
     import_scene("npz", [sources["npz"]], out, log=None)
@@ -211,14 +212,15 @@ def test_export_force_across_formats_removes_exactly_the_old_export(tiny_scene_d
 def test_failed_export_leaves_no_state_that_needs_force(tiny_scene_dir, tmp_path, monkeypatch):
     """Issue: after a failed export a lone .evpose/config.json made the fixed rerun refuse without --force.
     A run that failed before any window was complete is replaced by the next run, whatever its options."""
-    from evpose.core.export import common, export_scene
+    from evpose.core.export import export_scene
+    from evpose.core.export.worker import WorkerContext
 
     out = tmp_path / "ex"
 
     def boom(*a, **k):
         raise RuntimeError("the scene's events are broken")
 
-    monkeypatch.setattr(common.WorkerContext, "run", boom)
+    monkeypatch.setattr(WorkerContext, "run", boom)
     with pytest.raises(RuntimeError):
         export_scene(tiny_scene_dir, "epose", out, objects="box")
     assert (out / ".evpose" / "config.json").is_file()

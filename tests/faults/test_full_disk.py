@@ -107,9 +107,9 @@ def test_h5_export_resumes_after_the_disk_filled_up_midway(tiny_scene_dir, small
 
 _NO_PRECHECK = r"""
 import sys
-import evpose.core.data.events, evpose.core.export.h5
+import evpose.core.data.event_writer, evpose.core.export.h5
 noop = lambda *a, **k: None
-evpose.core.data.events.ensure_free_space = noop          # let HDF5 itself run into the full disk
+evpose.core.data.event_writer.ensure_free_space = noop          # let HDF5 itself run into the full disk
 evpose.core.export.h5.ensure_free_space = noop
 from evpose.app.cli.main import main
 sys.exit(main(sys.argv[1:]))
@@ -194,8 +194,8 @@ def test_epose_export_on_a_full_disk_and_the_resumed_rerun(tiny_scene_dir, small
 # ------------------------------------------------------------------------------------------- import and synth
 @pytest.fixture(scope="module")
 def npz_source(tiny_scene_dir, tmp_path_factory) -> Path:
-    from evpose.core.data.events import EventStore
-    from evpose.core.data.scene import load_manifest
+    from evpose.core.data.event_store import EventStore
+    from evpose.core.data.manifest_reader import load_manifest
     from evpose.core.data.trajectory import Trajectory
 
     with EventStore(tiny_scene_dir / "events.h5") as es:
@@ -260,7 +260,7 @@ def test_wrap_errors_lets_output_errors_through():
     read-only output is not the input's fault and passes through (to be named as --out)."""
     import errno
 
-    from evpose.core.importers.common import ImportFailure, wrap_errors
+    from evpose.core.importers.failure import ImportFailure, wrap_errors
 
     for code in (errno.ENOSPC, errno.EROFS, errno.EDQUOT):
         with pytest.raises(OSError) as ei:

@@ -20,9 +20,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from evpose.core.data.scene import Scene, SceneError, load_manifest
-from evpose.core.data.trajectory import MAX_GAP_STEPS, Trajectory, default_max_gap_us
-from evpose.core.label.annotate import time_windows
+from evpose.core.data.manifest import SceneError
+from evpose.core.data.manifest_reader import load_manifest
+from evpose.core.data.scene import Scene
+from evpose.core.data.trajectory import Trajectory
+from evpose.core.data.trajectory_holes import MAX_GAP_STEPS, default_max_gap_us
+from evpose.core.label.windows import time_windows
 
 HOLE_US = 200_000
 

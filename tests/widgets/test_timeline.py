@@ -7,7 +7,9 @@ import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.session.timeline import TimelineData
-from evpose.widgets.timeline import SCRUB_INTERVAL_MS, STATUS_COLORS, Timeline
+from evpose.widgets.timeline import Timeline
+from evpose.widgets.timeline_scrub import SCRUB_INTERVAL_MS
+from evpose.widgets.timeline_style import STATUS_COLORS
 
 LEFT = QtCore.Qt.LeftButton
 

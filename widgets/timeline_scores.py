@@ -1,0 +1,178 @@
+"""The timeline's score row: per-object alignment scores over time, each in its object's colour, with
+the worst window of each object marked (x), a cursor and the current window's span; it also keeps the
+control row's "Scores" check box and "Worst ▾" menu in step with the scores shown."""
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+
+from evpose.widgets.timeline_style import (
+    LEFT_AXIS_W,
+    RIGHT_AXIS_W,
+    ScrubViewBox,
+    label_style,
+    long_curve,
+    make_cursor,
+    make_span,
+    small_font,
+    swatch,
+    white_layout,
+)
+
+__all__ = ["ScoreRow"]
+
+OTHER_COLOR = (80, 80, 80)      # a score series that names no object of the scene
+
+
+class ScoreRow:
+    """Score curves of a :class:`~evpose.core.session.model.Session`'s objects, x-linked to the main row.
+
+    Parameters
+    ----------
+    session : Session
+        Read: object names, colours, the selected and hidden objects.
+    scrub : callable(x_s, final)
+        Left click / drag on the row.
+    x_link : pg.ViewBox
+        The main row's ViewBox (same x range).
+    cursor_dragged, cursor_released : callable(line)
+        The row's cursor line moved / let go.
+    controls : ControlBar
+        Its ``scores_check``, ``worst_button`` and ``worst_menu`` follow the scores.
+    goto_worst : callable(name)
+        A "Worst ▾" menu entry was chosen.
+    axis : Timeline
+        The time axis: ``axis.x_of(t_us)`` (plot x in s of an event time in µs) and ``axis.t_ref_us``
+        (the event time of x = 0).
+    """
+
+    def __init__(self, session, scrub, x_link, cursor_dragged, cursor_released, *, controls, goto_worst, axis):
+        self.session = session
+        self.controls = controls
+        self.goto_worst = goto_worst
+        self.axis = axis
+        self.t_s: np.ndarray | None = None
+        self.scores: dict[str, np.ndarray] = {}
+        self.items: dict[str, pg.PlotDataItem] = {}
+        self.lower_is_better = False
+        self.glw = white_layout()
+        self.vb = ScrubViewBox(scrub, enableMenu=False)
+        self.plot: pg.PlotItem = self.glw.addPlot(row=0, col=0, viewBox=self.vb)
+        sp = self.plot
+        sp.setMenuEnabled(False)
+        sp.hideButtons()
+        sp.setMouseEnabled(x=True, y=False)
+        sp.setXLink(x_link)
+        sp.showGrid(x=True, y=True, alpha=0.15)
+        sp.hideAxis("bottom")
+        sp.getAxis("left").setWidth(LEFT_AXIS_W)
+        sp.getAxis("left").setLabel("score", **label_style())
+        small_font(sp.getAxis("left"))
+        sp.showAxis("right")
+        sp.getAxis("right").setWidth(2 * RIGHT_AXIS_W)
+        sp.getAxis("right").setStyle(showValues=False)
+        self.vb.enableAutoRange(x=False, y=True)
+        self.vb.setAutoVisible(y=True)
+        self.legend = sp.addLegend(offset=(4, 2), labelTextSize="8pt", colCount=6,
+                                   brush=pg.mkBrush(255, 255, 255, 200))
+        self.cursor = make_cursor(cursor_dragged, cursor_released)
+        self.span = make_span()
+        sp.addItem(self.span, ignoreBounds=True)
+        sp.addItem(self.cursor, ignoreBounds=True)
+        self.worst_item = pg.ScatterPlotItem(size=9, symbol="x", pen=None)
+        self.worst_item.setZValue(15)
+        sp.addItem(self.worst_item, ignoreBounds=True)
+
+    def set_scores(self, t_s, scores: dict, *, lower_is_better: bool = False, label: str = "score") -> None:
+        """Per-object alignment scores over time, drawn in each object's colour.
+
+        Parameters
+        ----------
+        t_s : (N,) array
+            Window label times, seconds since the first event (the timeline's x).
+        scores : dict name -> (N,) float
+            NaN where undefined (object out of view, no events, no pose).
+        lower_is_better : bool
+            False (default) for :mod:`evpose.core.align.score`'s ``score`` (1 = every event on an edge, 0 =
+            noise): the worst window is the minimum, as in ``evpose.core.align.score_table.worst_window``. True
+            for distances (``distance_px``): the worst window is the maximum.
+        label : str
+            Left-axis label, with units.
+        """
+        t_s = np.asarray(t_s, np.float64).ravel()
+        clean = {}
+        for name, s in scores.items():
+            s = np.asarray(s, np.float64).ravel()
+            if s.shape != t_s.shape:
+                raise ValueError(f"scores[{name!r}] has {s.size} values for {t_s.size} times")
+            clean[name] = s
+        self.clear_scores()
+        self.t_s, self.scores, self.lower_is_better = t_s, clean, bool(lower_is_better)
+        self.plot.getAxis("left").setLabel(label, **label_style())
+        c = self.controls
+        for name, s in clean.items():
+            item = long_curve(pg.mkPen(self.color(name), width=1.5), name)
+            self.plot.addItem(item)   # add before setData: clipping needs the ViewBox
+            item.setData(t_s, s)
+            self.items[name] = item
+            act = c.worst_menu.addAction(f"{name}")
+            act.setIcon(swatch(self.color(name)))
+            act.triggered.connect(lambda _=False, n=name: self.goto_worst(n))
+        self.style()
+        pts = [(self.axis.x_of(t), self.score_at(n, t), n) for n in clean if (t := self.worst_time(n)) is not None]
+        self.worst_item.setData([p[0] for p in pts], [p[1] for p in pts],
+                                brush=None, pen=[pg.mkPen(self.color(p[2]), width=2) for p in pts])
+        has = bool(clean)
+        c.scores_check.setEnabled(has)
+        c.worst_button.setEnabled(has)
+        c.scores_check.setChecked(has)
+        self.glw.setVisible(has and c.scores_check.isChecked())
+
+    def clear_scores(self) -> None:
+        for item in self.items.values():
+            self.plot.removeItem(item)
+        self.items.clear()
+        self.scores = {}
+        self.t_s = None
+        c = self.controls
+        c.worst_menu.clear()
+        self.worst_item.setData([], [])
+        c.scores_check.setEnabled(False)
+        c.worst_button.setEnabled(False)
+        self.glw.setVisible(False)
+
+    def worst_time(self, name: str) -> int | None:
+        """Event time (µs) of the window with the worst score of ``name`` (NaN ignored): the minimum, or the
+        maximum when the scores were set with ``lower_is_better``; None if the object has no defined score."""
+        i = self.worst_index(name)
+        if i is None:
+            return None
+        return self.axis.t_ref_us + int(round(float(self.t_s[i]) * 1e6))
+
+    def worst_index(self, name: str) -> int | None:
+        """Index of the worst window of ``name`` (NaN ignored): the minimum, or the maximum when lower is
+        better; None if the object has no defined score."""
+        if name not in self.scores:
+            raise KeyError(f"no scores for {name!r}")
+        s = self.scores[name]
+        finite = np.isfinite(s)
+        if not finite.any():
+            return None
+        masked = np.where(finite, s, -np.inf if self.lower_is_better else np.inf)
+        return int(np.argmax(masked) if self.lower_is_better else np.argmin(masked))
+
+    def score_at(self, name: str, t_us: int) -> float:
+        """Score of ``name`` at the window nearest to event time ``t_us``."""
+        i = int(np.argmin(np.abs(self.t_s - self.axis.x_of(t_us))))
+        return float(self.scores[name][i])
+
+    def color(self, name: str):
+        return self.session.color(name) if name in self.session.object_names else OTHER_COLOR
+
+    def style(self) -> None:
+        """The selected object's curve wide and on top, hidden objects' faint."""
+        sel, hidden = self.session.view.selected, self.session.view.hidden
+        for name, item in self.items.items():
+            width = 2.5 if name == sel else 1.2
+            item.setPen(pg.mkPen(*self.color(name), 90 if name in hidden else 255, width=width))
+            item.setZValue(5 if name == sel else 0)
