@@ -1,6 +1,6 @@
 """Automatic estimates in the app: clock sync, pose refinement and sequence-wide scores.
 
-Each runs the core function (:mod:`core.sync`, :mod:`core.refine`, :mod:`core.score`) on a
+Each runs the core function (:mod:`evpose.core.align.estimate`, :mod:`evpose.core.align.pose_refine`, :mod:`evpose.core.align.score_table`) on a
 snapshot of the scene in a :class:`~evpose.app.workers.Job` (the window stays responsive, a progress
 dialog can cancel), then shows the proposal with how sure it is; accepting applies it through
 the History as **one** undo step. Nothing is applied without the user's accept.

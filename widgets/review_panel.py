@@ -1,7 +1,7 @@
 """Review marks: verified / rejected / flagged over the current window or a time range.
 
 Marks cover grid windows (the current window is a cell of the export grid) and replace older marks of
-their scope on the overlap (:mod:`core.review`). A mark made before a later change of the clock or of
+their scope on the overlap (:mod:`evpose.core.document.review`). A mark made before a later change of the clock or of
 its object's pose is *stale*: the list shows it greyed and italic with the reason ("verified at
 offset X us (now Y us)"); ``--only-verified`` exports leave stale marks out by default."""
 from __future__ import annotations

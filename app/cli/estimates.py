@@ -1,10 +1,7 @@
 """What ``evpose sync`` and ``evpose refine`` share: the ``--windows`` bound, the line describing a
-clock estimate from edges, and saving the estimates ``--apply`` stored.
-
-``--apply`` runs a change through a :class:`evpose.core.document.history.History` as one undo step
-and saves ``corrections.json`` beside the scene through :meth:`evpose.core.data.scene.Scene.save_corrections`
-(revision check: another program's edits saved meanwhile are merged; a real conflict is refused with
-exit status 2 and one line naming the field and both values).
+clock estimate from edges. ``--apply`` saves through :func:`evpose.core.align.apply.save_applied` (revision
+check: another program's edits saved meanwhile are merged; a real conflict is refused with exit status 2
+and one line naming the field and both values).
 """
 from __future__ import annotations
 
@@ -12,7 +9,7 @@ import math
 
 from evpose.app.cli.options import check_int
 
-__all__ = ["MAX_WINDOWS_OPT", "check_windows", "edges_line", "save_applied"]
+__all__ = ["MAX_WINDOWS_OPT", "check_windows", "edges_line"]
 
 #: ``--windows`` of ``sync --edges`` and ``refine``: each window costs a render per iteration.
 MAX_WINDOWS_OPT = 10_000
@@ -31,19 +28,3 @@ def edges_line(r, label: str = "edges") -> str:
     sk = f"{r.skew_ppm:.2f} ppm " + (f"(fitted, ± {r.skew_std_ppm:.1f} ppm)" if r.skew_estimated else "(kept)")
     return (f"{label}: offset {r.offset_us} us{pm}, skew {sk}; {r.n_windows} windows, {r.runtime_s:.1f} s "
             "(assumes the object poses are right)")
-
-
-def save_applied(scene, data: dict) -> str:
-    """Save the applied corrections through the one checked save path (revision check, merge with
-    another program's edits saved meanwhile, or a refusal naming the conflict: raised as
-    ``CorrectionsConflict``, an ``InputError``, so the command exits 2 with one line). Fills
-    ``data["saved"]``, ``data["revision"]``, ``data["merged_from_disk"]``; returns the text line."""
-    path = scene.save_corrections()
-    report = scene.corrections.last_save
-    data["saved"] = str(path)
-    data["revision"] = report.revision
-    data["merged_from_disk"] = list(report.from_disk)
-    line = f"applied and saved to {path} (revision {report.revision})"
-    if report.from_disk:
-        line += f"; kept {', '.join(report.from_disk)} saved meanwhile by another program"
-    return line

@@ -5,63 +5,14 @@ from __future__ import annotations
 from evpose.app.cli.errors import command
 from evpose.app.cli.json_output import emit
 
-__all__ = ["add_info_parser", "cmd_info", "print_info", "scene_info", "info_text", "HOLE_WINDOW_US"]
+__all__ = ["add_info_parser", "cmd_info", "print_info", "info_text"]
 
-#: ``info`` counts the windows without a label because of trajectory holes for this tiling (the export default).
-HOLE_WINDOW_US = 10_000
 #: Holes listed one per line in the text summary (all of them are in the JSON).
 HOLES_SHOWN = 20
 
 
-def scene_info(scene) -> dict:
-    """Summary of a scene (the ``info --json`` document); times in µs, event clock unless named."""
-    ev = scene.events
-    traj = scene.trajectory
-    clock = scene.clock
-    t0, t1 = ev.t_first_us, ev.t_last_us
-    duration = 0.0 if t0 is None else (t1 - t0) * 1e-6
-    objects = []
-    for spec in scene.manifest.objects:
-        objects.append({"name": spec.name, "class_id": spec.class_id, "mesh": str(spec.mesh),
-                        "rotation_residual": spec.rotation_residual,
-                        "corrected": spec.name in scene.corrections.object_deltas})
-    holes = scene.trajectory_holes(clock, window_us=HOLE_WINDOW_US)
-    # fraction of event time covered by the trajectory under the clock in effect
-    if t0 is not None:
-        _, valid = traj.at_event_time([t0, t1], clock)
-        coverage = [bool(v) for v in valid]
-    else:
-        coverage = []
-    pose_span_s = max((traj.t_last_us - traj.t_first_us) * 1e-6, 1e-9)
-    gap_source = "scene.toml" if scene.manifest.trajectory_max_gap_us is not None else "default"
-    return {
-        "name": scene.name,
-        "path": str(scene.root),
-        "duration_s": duration,
-        "n_events": int(ev.n_events),
-        "event_rate_hz": (ev.n_events / duration) if duration > 0 else 0.0,
-        "t0_us": t0,
-        "t1_us": t1,
-        "camera": scene.camera.to_dict(),
-        "n_poses": len(traj),
-        "trajectory": {"frame": scene.manifest.trajectory_frame, "t0_us": traj.t_first_us,
-                       "t1_us": traj.t_last_us, "rate_hz": (len(traj) - 1) / pose_span_s,
-                       "notes": traj.notes, "covers_first_last_event": coverage,
-                       "max_gap_us": traj.max_gap_us,
-                       "max_gap_source": gap_source,
-                       "holes": holes, "hole_window_us": HOLE_WINDOW_US,
-                       "windows_in_holes": sum(h["n_windows"] for h in holes)},
-        "objects": [o["name"] for o in objects],
-        "object_details": objects,
-        "clock": {"offset_us": clock.offset_us, "skew_ppm": clock.skew_ppm, "t_ref_us": clock.t_ref_us,
-                  "prior_offset_us": scene.manifest.clock_offset_us, "prior_skew_ppm": scene.manifest.clock_skew_ppm},
-        "corrections": str(scene.corrections_path) if scene.corrections_path.exists() else None,
-        "warnings": scene.manifest.warnings,
-    }
-
-
 def info_text(info: dict) -> str:
-    """The text summary of :func:`scene_info`'s document."""
+    """The text summary of :func:`evpose.core.data.scene_summary.scene_info`'s document."""
     c, tr = info["clock"], info["trajectory"]
     lines = [
         f"scene      {info['name']}  ({info['path']})",
@@ -76,7 +27,7 @@ def info_text(info: dict) -> str:
     ]
     if tr["holes"]:
         lines.append(f"holes      {len(tr['holes'])} in the trajectory (gaps over max_gap_us = {tr['max_gap_us']}, "
-                     f"{tr['max_gap_source']}): {tr['windows_in_holes']} windows of {HOLE_WINDOW_US // 1000} ms "
+                     f"{tr['max_gap_source']}): {tr['windows_in_holes']} windows of {tr['hole_window_us'] // 1000} ms "
                      "get no label")
         for h in tr["holes"][:HOLES_SHOWN]:
             lines.append(f"           [{h['t0_pose_us']}, {h['t1_pose_us']}] us pose clock = "
@@ -93,6 +44,7 @@ def info_text(info: dict) -> str:
 def print_info(args) -> None:
     """Open ``args.scene`` and print its summary (JSON with ``args.json``)."""
     from evpose.core.data.scene import Scene
+    from evpose.core.data.scene_summary import scene_info
 
     scene = Scene.open(args.scene)
     try:

@@ -1,11 +1,11 @@
 """``evpose refine SCENE [--object NAME] [--offset] [--json] [--apply]``: object poses (and the clock
 offset) from event/edge alignment (DESIGN section 5: per object ``dR_deg``, ``dt_mm``,
 ``score_before``, ``score_after``, ``runtime_s``). ``--apply`` stores the accepted results as one undo step
-and saves (:func:`evpose.app.cli.estimates.save_applied`)."""
+and saves (:func:`evpose.core.align.apply.save_applied`)."""
 from __future__ import annotations
 
 from evpose.app.cli.errors import CliError, command
-from evpose.app.cli.estimates import check_windows, edges_line, save_applied
+from evpose.app.cli.estimates import check_windows, edges_line
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 
@@ -80,6 +80,8 @@ def cmd_refine(args) -> int:
         changed = _refine(scene, args, out, lines)
         out["applied"] = bool(args.apply and changed)
         if out["applied"]:
+            from evpose.core.align.apply import save_applied
+
             lines.append(save_applied(scene, out))
     finally:
         scene.close()

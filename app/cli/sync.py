@@ -4,14 +4,13 @@ level is the final rate estimate, the edge stage under ``"edges"``)."""
 from __future__ import annotations
 
 import math
-import sys
 
 from evpose.app.cli.errors import CliError, command
-from evpose.app.cli.estimates import check_windows, edges_line, save_applied
+from evpose.app.cli.estimates import check_windows, edges_line
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 
-__all__ = ["cmd_sync", "check_sync_args", "MAX_RANGE_MS", "MAX_BIN_US"]
+__all__ = ["cmd_sync", "check_sync_args", "sync_options", "MAX_RANGE_MS", "MAX_BIN_US"]
 
 #: Option bounds (checked before the scene is opened; one error line naming the option).
 MAX_RANGE_MS = 3_600_000.0      # sync search range: an hour either way (the lag scan is ~2 x range / bin long)
@@ -27,43 +26,6 @@ def check_sync_args(args) -> None:
         raise CliError(f"--bin-us: must be a multiple of 1000 us between 1000 and {MAX_BIN_US} "
                        f"(the event rate comes from the millisecond index), got {args.bin_us}")
     check_windows(args)
-
-
-def _estimate(scene, args, data: dict):
-    """Run the rate stage (and the edge stage with ``--edges``), apply with ``--apply``; fills ``data``.
-    Returns ``(rate result, clock correction, edge result or None, saved line or "")``."""
-    from evpose.core.align.apply import apply_offset_result, apply_sync, clock_correction
-    from evpose.core.align.estimate import sync_scene
-    from evpose.core.align.minima_baseline import sync_minima_baseline
-    from evpose.core.document.history import History
-
-    res = sync_scene(scene, range_ms=args.range_ms, bin_us=args.bin_us)
-    data.update(res.to_json(curve=args.curve))
-    corr = clock_correction(scene, res)
-    data["correction"] = None if corr is None else {"offset_us": corr[0], "skew_ppm": corr[1]}
-    if args.baseline:
-        data["baseline"] = sync_minima_baseline(scene, range_ms=args.range_ms).to_json()
-    edges = None
-    if args.edges and res.reliable:
-        from evpose.core.align.refine_result import RefineParams
-        from evpose.core.align.sync_edges import refine_offset_from_sync
-
-        with Progress("sync edges", not args.quiet) as progress:
-            edges = refine_offset_from_sync(scene, res, params=RefineParams(n_windows=args.windows),
-                                            progress=progress)
-        data["edges"] = edges.to_json()
-    applied, saved_line = False, ""
-    if args.apply:
-        if res.reliable:
-            history = History(scene.corrections)
-            applied = (apply_offset_result(history, scene, edges, "clock sync (rate, then edges)")
-                       if edges is not None and edges.accepted else apply_sync(history, scene, res))
-            if applied:
-                saved_line = save_applied(scene, data)
-        else:
-            print(f"evpose sync: not applied: {res.reason}", file=sys.stderr)
-    data["applied"] = applied
-    return res, corr, edges, saved_line
 
 
 def sync_text(res, corr, edges, data: dict, saved_line: str) -> str:
@@ -90,16 +52,25 @@ def sync_text(res, corr, edges, data: dict, saved_line: str) -> str:
     return text
 
 
+def sync_options(args):
+    """The :class:`~evpose.core.align.sync_run.SyncOptions` of parsed ``sync`` arguments."""
+    from evpose.core.align.sync_run import SyncOptions
+
+    return SyncOptions(range_ms=args.range_ms, bin_us=args.bin_us, edges=args.edges, windows=args.windows,
+                       apply=args.apply, baseline=args.baseline, curve=args.curve)
+
+
 @command("sync")
 def cmd_sync(args) -> int:
     check_sync_args(args)
+    from evpose.core.align.sync_run import run_sync
     from evpose.core.data.scene import Scene
 
     scene = Scene.open(args.scene)
-    data: dict = {}
     try:
-        res, corr, edges, saved_line = _estimate(scene, args, data)
+        with Progress("sync edges", not args.quiet) as progress:
+            run = run_sync(scene, sync_options(args), edge_progress=progress)
     finally:
         scene.close()
-    emit(args, data, sync_text(res, corr, edges, data, saved_line))
+    emit(args, run.data, sync_text(run.result, run.correction, run.edges, run.data, run.saved_line))
     return 0

@@ -12,7 +12,7 @@ from evpose.core.align.refine_result import RefineResult
 from evpose.core.align.sync_result import SyncResult
 from evpose.core.document.estimates import apply_clock_estimate, clock_correction_for
 
-__all__ = ["apply_offset_result", "apply_sync", "clock_correction"]
+__all__ = ["apply_offset_result", "apply_sync", "clock_correction", "save_applied"]
 
 
 def clock_correction(scene, result: SyncResult) -> tuple[int, float] | None:
@@ -39,3 +39,19 @@ def apply_offset_result(history, scene, result: RefineResult, text: str = "clock
         return False
     apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
     return True
+
+
+def save_applied(scene, data: dict) -> str:
+    """Save the applied corrections through the one checked save path (revision check, merge with
+    another program's edits saved meanwhile, or a refusal naming the conflict: raised as
+    ``CorrectionsConflict``, an ``InputError``). Fills ``data["saved"]``, ``data["revision"]`` and
+    ``data["merged_from_disk"]``; returns the line that says so."""
+    path = scene.save_corrections()
+    report = scene.corrections.last_save
+    data["saved"] = str(path)
+    data["revision"] = report.revision
+    data["merged_from_disk"] = list(report.from_disk)
+    line = f"applied and saved to {path} (revision {report.revision})"
+    if report.from_disk:
+        line += f"; kept {', '.join(report.from_disk)} saved meanwhile by another program"
+    return line
