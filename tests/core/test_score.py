@@ -103,7 +103,13 @@ def test_every_window_true_pose_scores_higher(tiny):
         assert np.all(np.isnan(s_r.data[s_r.mask])) and np.all(np.isfinite(s_r.data[~s_r.mask]))
         w = score_table.worst_window(right, n)
         assert w is not None and right.valid[n][w] and right.score[n][w] == s_r.min()
-        assert np.array_equal(right.n_events_near[n] > 0, right.n_events_near[n] > 0)
+        # events near the object: at least min_events where the score is defined, and the count
+        # the reason names where too few made it undefined
+        near = right.n_events_near[n]
+        assert near.dtype.kind == "i" and np.all(near[right.valid[n]] >= right.params.min_events), n
+        few = {i: r for i, r in right.reasons[n].items() if "events near the object" in r}
+        assert few and all(r == f"only {near[i]} events near the object" and near[i] < right.params.min_events
+                   for i, r in few.items()), n
     doc = right.to_json()
     json.dumps(doc)
     assert doc["n_windows"] == 80 and set(doc["summary"]) == set(scene.object_names)

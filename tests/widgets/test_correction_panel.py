@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 from PySide6 import QtCore, QtWidgets
+from scipy.spatial.transform import Rotation
 
 from evpose.core.data.geometry import pose_error
 from evpose.widgets.correction_panel import CorrectionPanel
@@ -56,13 +57,26 @@ def test_nudge_buttons_move_the_object_in_camera_axes(panel, session, qtbot):
     d = T1[0, 0, :3, 3] - T0[0, 0, :3, 3]
     np.testing.assert_allclose(d, [0.003, 0, 0], atol=1e-9)  # 3 mm along camera x
     assert len(session.history) == 1  # merged into one undo step
+    # the panel shows the correction in the base frame: 3 mm along the camera's x axis there
+    R_bc = session.current_T_base_cam()[:3, :3]
+    t_mm = 3.0 * R_bc[:, 0]
+    assert panel.object_delta.text() == ("correction (base frame): Δ rot 0.000°, Δ t 3.00 mm "
+                                         f"[{t_mm[0]:+.2f}, {t_mm[1]:+.2f}, {t_mm[2]:+.2f}] mm")
+    box = session.scene.model("box")
+    c_base = session.scene.T_base_obj("box") @ np.append(box.bbox_center_m, 1.0)   # box centre, base frame
     rb = panel.findChild(QtWidgets.QToolButton, "rotate_z_plus")
     panel.rot_step.setCurrentIndex(3)  # 1 degree
     qtbot.mouseClick(rb, QtCore.Qt.LeftButton)
     T2, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
     _, dR = pose_error(T2[0, 0], T1[0, 0])
     assert np.degrees(dR) == pytest.approx(1.0, abs=1e-9)
-    assert "Δ t 3.00 mm" in panel.object_delta.text() or "Δ t" in panel.object_delta.text()
+    # 1 degree about camera z through the box centre: the base-frame correction turns by 1 degree
+    # and its translation swings about that centre
+    R_step = Rotation.from_rotvec(np.radians(1.0) * R_bc[:, 2]).as_matrix()
+    t_mm = (R_step @ (t_mm * 1e-3) + c_base[:3] - R_step @ c_base[:3]) * 1e3
+    assert abs(np.linalg.norm(t_mm) - 3.0) > 0.05       # distinguishable from the 3.00 mm before
+    assert panel.object_delta.text() == (f"correction (base frame): Δ rot 1.000°, Δ t {np.linalg.norm(t_mm):.2f} mm "
+                                         f"[{t_mm[0]:+.2f}, {t_mm[1]:+.2f}, {t_mm[2]:+.2f}] mm")
     session.history.undo()
     session.history.undo()
     T3, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])

@@ -30,7 +30,9 @@ def test_frame_and_overlays_are_displayed(view, session):
     k = 0
     x, y = view._items[session.object_names[k]]["contour"].getData()
     ok = np.isfinite(x)
-    assert (lab.label_map[y[ok].astype(int), x[ok].astype(int)] == k).mean() > 0.9
+    np.testing.assert_array_equal(x[ok], np.round(x[ok]))      # pixel centres, not half a pixel off
+    np.testing.assert_array_equal(y[ok], np.round(y[ok]))
+    assert np.all(lab.label_map[y[ok].astype(int), x[ok].astype(int)] == k)
 
 
 def test_hidden_object_and_overlay_toggles(view, session):
@@ -68,3 +70,50 @@ def test_unlabeled_window_shows_reason(view, session):
     session.set_offset_correction_us(10_000_000)
     view.set_frame(FrameComputer().frame(session.request()))
     assert "outside the trajectory" in view.message.toPlainText()
+
+
+def _lit_block_centre(img: np.ndarray, rgb) -> np.ndarray:
+    """Centre (x, y) in widget pixels of the screen pixels of colour ``rgb`` (a lit sensor pixel)."""
+    ys, xs = np.nonzero(np.all(np.abs(img[..., :3].astype(int) - rgb) <= 8, axis=-1))
+    assert len(xs) > 100, "the lit pixel is not on screen"
+    return np.array([(xs.min() + xs.max() + 1) / 2, (ys.min() + ys.max() + 1) / 2])
+
+
+def test_event_pixel_and_overlay_point_land_on_the_same_spot(view, session, qtbot):
+    """An event at pixel (u, v) (in the event image and in the mask image) is drawn centred where
+    an overlay point at (u, v) is drawn: the screen shows both at the same place, zoomed so that
+    a sensor pixel is tens of screen pixels wide (half a pixel off is a large miss)."""
+    from dataclasses import replace
+
+    from PySide6 import QtGui
+
+    data = FrameComputer().frame(session.request())
+    H, W = data.image_rgb.shape[:2]
+    u, v = 61, 47                                    # the event pixel
+    um, vm = 64, 45                                  # a masked pixel (mask image)
+    image = np.zeros((H, W, 3), np.uint8)
+    image[v, u] = (255, 255, 255)
+    mask = np.zeros((H, W, 4), np.uint8)
+    mask[vm, um] = (255, 0, 0, 255)
+    view.set_frame(replace(data, image_rgb=image, mask_rgba=mask, overlays=[]))   # nothing drawn over them
+    view.vb.setRange(QtCore.QRectF(u - 5, v - 5, 10, 10), padding=0)
+    qtbot.wait(50)
+    grab = view.glw.grab().toImage().convertToFormat(QtGui.QImage.Format_RGBA8888)
+    shot = np.frombuffer(grab.constBits(), np.uint8).reshape(grab.height(), grab.bytesPerLine() // 4, 4)
+    shot = shot[:, :grab.width()]
+    scale = grab.width() / view.glw.width()          # device pixels per widget pixel
+
+    def on_screen(item, x, y):
+        """Where ``item`` draws its own point (x, y): widget pixels of the grab."""
+        p = view.glw.mapFromScene(item.mapToScene(QtCore.QPointF(x, y)))
+        return np.array([p.x(), p.y()]) * scale
+
+    px_size = (on_screen(view.axis_items[0], u + 1, v) - on_screen(view.axis_items[0], u, v))[0]
+    assert px_size > 20
+    # overlay items (contours, boxes, axes, centres) share the view's coordinates = OpenCV pixels
+    for item in (view.axis_items[0], view.center_item, view._items["box"]["contour"]):
+        np.testing.assert_allclose(on_screen(item, u, v), on_screen(view.axis_items[0], u, v), atol=1e-6)
+    np.testing.assert_allclose(_lit_block_centre(shot, (255, 255, 255)), on_screen(view.center_item, u, v),
+                               atol=0.1 * px_size)
+    np.testing.assert_allclose(_lit_block_centre(shot, (255, 0, 0)), on_screen(view.center_item, um, vm),
+                               atol=0.1 * px_size)
