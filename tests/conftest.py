@@ -70,6 +70,15 @@ def tiny_scene_dir(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def occlusion_scene_dir(tmp_path_factory) -> Path:
+    """A scene where objects hide each other (tests/occlusion_scene.py), built once per test session;
+    never modify it."""
+    from occlusion_scene import build_occlusion_scene
+
+    return build_occlusion_scene(tmp_path_factory.mktemp("occlusion"))
+
+
 @pytest.fixture
 def scene_copy(tiny_scene_dir, tmp_path) -> Path:
     """A private copy of the tiny scene that a test may modify."""

@@ -125,6 +125,121 @@ def test_layout_and_gt_info(gt_export):
     assert models_info["1"]["diameter"] == pytest.approx(scene.model("box").diameter_m * 1000)
 
 
+def mask_box(mask: np.ndarray) -> list[int]:
+    """BOP ``[x, y, w, h]`` of a 0/255 mask image (independent of the exporter), [-1] * 4 when empty."""
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return [-1, -1, -1, -1]
+    return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
+
+
+def test_models_written_in_millimetres(gt_export):
+    """The PLY models are in mm (BOP): their vertices are the scene's meshes x 1000, their extents and
+    diameter agree with models_info.json and with the built-in objects' known sizes (box 90 x 60 x 150 mm)."""
+    import trimesh
+    from scipy.spatial.distance import pdist
+
+    scene_dir, out, _, gt = gt_export
+    scene = Scene.open(scene_dir)
+    info = json.loads((out / "models" / "models_info.json").read_text())
+    known_mm = {"box": (90.0, 60.0, 150.0), "flatbox": (150.0, 100.0, 45.0), "cylinder": (70.0, 70.0, 120.0)}
+    for n in scene.object_names:
+        oid = gt["objects"][n]["class_id"]
+        ply = trimesh.load(out / "models" / f"obj_{oid:06d}.ply", process=False)
+        V = np.asarray(ply.vertices, np.float64)
+        np.testing.assert_allclose(V, scene.model(n).vertices_m * 1000.0, rtol=1e-6, atol=1e-4)   # float32 in the file
+        size = V.max(0) - V.min(0)
+        e = info[str(oid)]
+        np.testing.assert_allclose(size, [e["size_x"], e["size_y"], e["size_z"]], atol=1e-3)
+        np.testing.assert_allclose(V.min(0), [e["min_x"], e["min_y"], e["min_z"]], atol=1e-3)
+        np.testing.assert_allclose(size, known_mm[n], atol=0.01)
+        assert pdist(V).max() == pytest.approx(e["diameter"], abs=1e-3)
+    assert info["1"]["diameter"] == pytest.approx(np.sqrt(90.0**2 + 60.0**2 + 150.0**2), abs=0.01)
+
+
+@pytest.fixture(scope="module")
+def occluded_export(occlusion_scene_dir, tmp_path_factory):
+    """Three windows of the occlusion scene (tests/occlusion_scene.py) exported as BOP."""
+    base = tmp_path_factory.mktemp("bop-occlusion")
+    scene_dir = base / "scene"
+    shutil.copytree(occlusion_scene_dir, scene_dir)
+    scene = Scene.open(scene_dir)
+    t0 = scene.events.t_first_us + 50_000
+    scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 30_000, "verified")])
+    out = base / "out"
+    s = export_scene(scene, "bop", out, only_verified=True)
+    assert s.written == 3
+    return scene, out
+
+
+def _occluded_instances(scene, out):
+    """``(image id, gt index, scene_gt entry, scene_gt_info entry, mask, mask_visib)`` of the occluded cube."""
+    from occlusion_scene import OCCLUDED
+
+    sd = out / "000000"
+    scene_gt = json.loads((sd / "scene_gt.json").read_text())
+    ginfo = json.loads((sd / "scene_gt_info.json").read_text())
+    g = scene.object_names.index(OCCLUDED)
+    for im_id in scene_gt:
+        i = int(im_id)
+        full = cv2.imread(str(sd / "mask" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
+        vis = cv2.imread(str(sd / "mask_visib" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
+        yield im_id, g, scene_gt[im_id][g], ginfo[im_id][g], full, vis
+
+
+def test_amodal_mask_of_an_occluded_object(occluded_export):
+    """mask/ is the amodal mask: for a cube that another cube half hides it differs from mask_visib/,
+    contains it, and equals a render of the cube alone (evpose's rasteriser with only that object, and
+    open3d ray casting) in the undistorted camera."""
+    from evpose.core.label.raster import Rasterizer
+
+    scene, out = occluded_export
+    cam = scene.camera.undistorted()
+    alone = Rasterizer(cam)
+    n = 0
+    for im_id, g, e, info, full, vis in _occluded_instances(scene, out):
+        full, vis = full > 0, vis > 0
+        assert 0 < vis.sum() < 0.8 * full.sum(), (im_id, vis.sum(), full.sum())   # really occluded
+        assert not (vis & ~full).any()
+        assert info["px_count_all"] == int(full.sum()) and info["px_count_visib"] == int(vis.sum())
+        T = np.eye(4)
+        T[:3, :3] = np.array(e["cam_R_m2c"]).reshape(3, 3)
+        T[:3, 3] = np.array(e["cam_t_m2c"]) / 1000.0
+        model = scene.model(scene.object_names[g])
+        assert np.array_equal(full, alone.render_objects([model], [T]).mask(0))
+        n += 1
+    assert n == 3
+    o3d = pytest.importorskip("open3d")
+    K = cam.K
+    vv, uu = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+    dirs = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1], np.ones_like(uu)], axis=-1)
+    rays = o3d.core.Tensor(np.concatenate([np.zeros_like(dirs), dirs], axis=-1).astype(np.float32))
+    for im_id, g, e, info, full, vis in _occluded_instances(scene, out):
+        model = scene.model(scene.object_names[g])
+        V = model.vertices_m @ np.array(e["cam_R_m2c"]).reshape(3, 3).T + np.array(e["cam_t_m2c"]) / 1000.0
+        rc = o3d.t.geometry.RaycastingScene()
+        rc.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(model.faces.astype(np.uint32)))
+        ref = np.isfinite(rc.cast_rays(rays)["t_hit"].numpy())
+        full = full > 0
+        assert (full & ref).sum() / (full | ref).sum() >= 0.99
+
+
+def test_bbox_obj_is_the_amodal_box(occluded_export):
+    """bbox_obj is the tight box of the amodal mask, bbox_visib that of the visible mask (both read back
+    from the PNGs); for the half-hidden cube the two boxes differ."""
+    scene, out = occluded_export
+    sd = out / "000000"
+    ginfo = json.loads((sd / "scene_gt_info.json").read_text())
+    for im_id, entries in ginfo.items():
+        for g, e in enumerate(entries):
+            full = cv2.imread(str(sd / "mask" / f"{int(im_id):06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
+            vis = cv2.imread(str(sd / "mask_visib" / f"{int(im_id):06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
+            assert e["bbox_obj"] == mask_box(full), (im_id, g)
+            assert e["bbox_visib"] == mask_box(vis), (im_id, g)
+    differ = [info["bbox_obj"] != info["bbox_visib"] for *_, info, full, vis in _occluded_instances(scene, out)]
+    assert differ == [True] * 3
+
+
 def test_rgb_preserves_event_counts(gt_export):
     """Events are moved to undistorted pixels one by one (never resampled as an image)."""
     scene_dir, out, s, _ = gt_export
@@ -201,14 +316,15 @@ def _shift_trajectory(scene_dir, shift_us: int) -> None:
 @pytest.mark.parametrize("shift_us,skew_ppm", [(10_000_000, 1000.0), (-10_000_000, -1000.0)])
 def test_extreme_clock_round_trips_exactly(tiny_scene_dir, tmp_path, shift_us, skew_ppm):
     """Offsets of +-10 s and skews of +-1000 ppm reach the sidecar and the manifest exactly, and the
-    poses follow that clock."""
+    poses follow that clock, t_ref included: the windows lie in a move of the camera, where a t_ref 1 ms
+    off (a 1 us pose-time error at 1000 ppm) moves the exported poses by far more than the tolerance."""
     scene_dir = tmp_path / "scene"
     shutil.copytree(tiny_scene_dir, scene_dir)
     _shift_trajectory(scene_dir, shift_us)
     gt = load_ground_truth(scene_dir)
     offset = gt["clock"]["offset_us"] + shift_us
     scene = Scene.open(scene_dir)
-    t0 = scene.events.t_first_us + 500_000
+    t0 = scene.events.t_first_us + 300_000            # mid-move (the camera dwells from about +486 ms)
     scene.corrections.set(("offset_us",), offset)
     scene.corrections.set(("skew_ppm",), skew_ppm)
     scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 30_000, "verified")])
@@ -229,9 +345,12 @@ def test_extreme_clock_round_trips_exactly(tiny_scene_dir, tmp_path, shift_us, s
         assert t["offset_us"] == offset and type(t["offset_us"]) is int
         assert t["skew_ppm"] == skew_ppm
         T_bc = T_base_cam_at(traj, pose_time(t["t_label_us"], offset, skew_ppm, t_ref))
+        T_bc_ref_1ms = T_base_cam_at(traj, pose_time(t["t_label_us"], offset, skew_ppm, t_ref + 1000))
         for e, n in zip(scene_gt[im_id], scene.object_names):
             T = np.linalg.inv(T_bc) @ scene.T_base_obj(n)
             np.testing.assert_allclose(np.array(e["cam_t_m2c"]), T[:3, 3] * 1000, atol=1e-6)
+            T_1ms = np.linalg.inv(T_bc_ref_1ms) @ scene.T_base_obj(n)
+            assert np.abs(T_1ms[:3, 3] - T[:3, 3]).max() * 1000 > 1e-4     # 100 x the tolerance
 
 
 def test_K_new_option_and_scene_id(tiny_scene_dir, tmp_path):

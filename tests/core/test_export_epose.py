@@ -374,6 +374,66 @@ def test_defect_time_offset_in_one_product_only(exported):
     assert man["clock"]["offset_us"] == OFFSET_US and man["clock"]["correction_offset_us"] == OFFSET_US
 
 
+def box_corners_p1_p4(model) -> np.ndarray:
+    """The original's corners p1..p4 of the object's 3D box, (+x+y-z) (+x-y-z) (-x+y-z) (-x-y-z), written
+    out here from the layout description (independent of EPOSE_CORNER_ORDER)."""
+    (x0, y0, z0), (x1, y1, _) = model.bbox_min_max
+    return np.array([[x1, y1, z0], [x1, y0, z0], [x0, y1, z0], [x0, y0, z0]])
+
+
+def test_center_info_is_the_distorted_projection_of_the_origin(exported):
+    """centerInfo holds (u, v) of each object's origin in the raw camera: cv2.projectPoints WITH the lens
+    distortion of the pose in the same file; the pinhole projection is pixels away for this lens."""
+    scene_dir, out, _ = exported
+    cam = Scene.open(scene_dir).camera
+    assert np.abs(cam.dist).max() > 0.1
+    pinhole_error = 0.0
+    for path in mats(out)[::4]:
+        m = loadmat(path)
+        c = m["centerInfo"].reshape(-1, 2)
+        for j in range(len(c)):
+            t = m["pose"][:3, 4 * j + 3]
+            ref, _ = cv2.projectPoints(t[None], np.zeros(3), np.zeros(3), cam.K, cam.dist)
+            np.testing.assert_allclose(c[j], ref.ravel(), atol=1e-6)
+            pinhole_error = max(pinhole_error, float(np.abs(cam.K[:2] @ (t / t[2]) - ref.ravel()).max()))
+    assert pinhole_error > 2.0     # the test can tell a projection without distortion apart
+
+
+def test_bbox_txt_holds_the_distorted_corners_p1_to_p4(exported):
+    """NNNN_bbox.txt: one line per object, its name, then (u, v) of corners p1..p4 in that order, the
+    projection WITH distortion of the file's pose (to the %.4f precision of the text)."""
+    scene_dir, out, _ = exported
+    scene = Scene.open(scene_dir)
+    cam = scene.camera
+    for path in mats(out)[::6]:
+        m = loadmat(path)
+        lines = path.with_name(path.name[:4] + "_bbox.txt").read_text().splitlines()
+        assert [ln.split("  ")[0] for ln in lines] == scene.object_names
+        for j, (line, name) in enumerate(zip(lines, scene.object_names)):
+            uv = np.array([float(v) for v in line.split("  ")[1].split(" ")]).reshape(4, 2)
+            T = m["pose"][:, 4 * j:4 * j + 4]
+            rvec, _ = cv2.Rodrigues(T[:3, :3])
+            ref, _ = cv2.projectPoints(box_corners_p1_p4(scene.model(name)), rvec, T[:3, 3], cam.K, cam.dist)
+            np.testing.assert_allclose(uv, ref.reshape(4, 2), atol=6e-5)
+
+
+def test_mat_boxes_are_the_mask_extents(exported):
+    """bbox_visib of the .mat is the tight [x y w h] box of mask_image_obj{K} (read back from the PNG),
+    px_count_visib its pixel count."""
+    _, out, _ = exported
+    n_boxes = 0
+    for path in mats(out)[::7]:
+        m = loadmat(path)
+        for j in range(m["bbox_visib"].shape[0]):
+            mask = read_png(out / f"{path.name[:4]}_mask_image_obj{j + 1}.png") > 0
+            ys, xs = np.nonzero(mask)
+            box = [-1, -1, -1, -1] if len(xs) == 0 else [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+            assert m["bbox_visib"][j].tolist() == box, (path.name, j)
+            assert m["px_count_visib"][0, j] == mask.sum()
+            n_boxes += len(xs) > 0
+    assert n_boxes >= 20
+
+
 def test_label_at_end_uses_window_end(tiny_scene_dir, tmp_path):
     _, out, s = _limited_export(tiny_scene_dir, tmp_path, n_windows=2, label_at="end")
     for path in mats(out):
