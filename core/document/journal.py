@@ -4,10 +4,13 @@ The app writes the document to ``.corrections.autosave.json`` now and then while
 edits; a session that did not save (a crash) leaves it behind, and the next one offers to restore
 it. The journal also records the state its edits started from (``base``, ``base_revision``), so a
 restore merges with what another program saved since instead of overwriting it. A journal that
-cannot be read back whole is ignored and reported, never half applied.
+cannot be read back whole is ignored and reported, never half applied: it is written atomically, and
+it starts with the SHA-256 of the rest of its content, so a journal that lost bytes anywhere, also in
+the middle (where the JSON may still parse), is refused.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -27,6 +30,7 @@ def write_journal(path: Path, doc: Corrections) -> Path | None:
     data["autosaved_at"] = time.time()
     data["base"] = doc.base
     data["base_revision"] = doc.revision
+    data = {"sha256": _digest(json.loads(json.dumps(data))), **data}      # first: a cut cannot drop it alone
     try:
         return atomic_write_text(path, json.dumps(data, indent=1))
     except OSError:
@@ -46,7 +50,11 @@ def read_journal(path: Path) -> tuple[Corrections | None, str | None]:
     except OSError as exc:
         return None, f"{path}: cannot read the autosave journal ({exc.strerror}); ignored"
     try:
-        return _parse(json.loads(raw.decode("utf-8")), path), None
+        data = json.loads(raw.decode("utf-8"))
+        if isinstance(data, dict) and "sha256" in data and data.pop("sha256") != _digest(data):
+            return None, (f"{path}: autosave journal is damaged (its content does not match its checksum: "
+                          "cut or changed); ignored")
+        return _parse(data, path), None
     except UnicodeDecodeError as exc:
         return None, f"{path}: autosave journal is not UTF-8 text (byte {exc.start}); ignored"
     except json.JSONDecodeError as exc:
@@ -54,6 +62,11 @@ def read_journal(path: Path) -> tuple[Corrections | None, str | None]:
                       f"{exc.colno}: {exc.msg}); ignored")
     except (CorrectionsError, RecursionError, TypeError, ValueError) as exc:
         return None, f"{path}: autosave journal is not usable ({exc}); ignored"
+
+
+def _digest(data: dict) -> str:
+    """SHA-256 (hex) of the journal's content as read back (every key but ``sha256``), in a canonical form."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def _parse(data, path: Path) -> Corrections:

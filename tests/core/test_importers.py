@@ -764,3 +764,24 @@ def test_bag_unfamiliar_event_definition_uses_rosbags(src, tmp_path):
     assert_events_equal(got, ev)
     assert_traj_equal(traj, src.traj)
     assert any("slow path" in w for w in rep["warnings"])
+
+
+def test_npz_fractional_seconds_at_a_low_event_rate(src, tmp_path):
+    """A quiet recording (~1e4 ev/s) with times as float seconds from the first pose: seconds imply 1e4 ev/s and
+    milliseconds 1e7 ev/s, both plausible; the fractions decide for seconds (the fractional-seconds rule of
+    ``guess_time_unit``, unit tests in test_time_units.py). Read as ms, the events would land 1000x too early."""
+    step = len(src.ev) // 8000
+    ev = src.ev[np.arange(0, len(src.ev), step)]
+    t0 = int(src.traj.t_us[0])
+    rel_traj = Trajectory(src.traj.t_us - t0, src.traj.positions_m, src.traj.quats_xyzw)
+    t_s = (ev.t - t0) / 1e6
+    rate = (len(t_s) - 1) / (t_s[-1] - t_s[0])
+    assert 5e3 < rate < 2e4 and np.any(t_s != np.round(t_s))
+    p = write_npz(tmp_path / "quiet.npz", ev, rel_traj, src.cam, t=t_s)
+    import_scene("npz", [p], tmp_path / "scene", log=None)
+    got, traj, _, rep = read_scene(tmp_path / "scene")
+    assert rep["time_units"]["quiet.npz:t (events)"]["unit"] == "s", rep["time_units"]
+    np.testing.assert_array_equal(got.t, ev.t - t0)          # exact µs back from the float seconds
+    for f in "xyp":
+        np.testing.assert_array_equal(getattr(got, f), getattr(ev, f))
+    assert_traj_equal(traj, rel_traj)
