@@ -253,7 +253,7 @@ def main(argv=None) -> int:
     t_redraw_budget = median_time(lambda: view.render_image(), R)
     view.set_interacting(True)
     t_redraw_lod = median_time(lambda: view.render_image(), R)
-    n_lod = view._lod_count
+    n_lod = view.point_layer.lod_count
     view.set_interacting(False)
     cam = view.view.camera
     cam_state = dict(fov=cam.fov, center=cam.center, azimuth=cam.azimuth, elevation=cam.elevation,

@@ -236,7 +236,8 @@ def test_close_unsubscribes(qtbot, session):
 
 def test_stock_markers_fallback_draws_the_same_colours(qtbot, session, monkeypatch):
     """With vispy's own shader (used if its source ever stops matching), the same data renders alike."""
-    from evpose.widgets.spacetime_view import SpaceTimeView, _lean_vertex_shader
+    from evpose.widgets.spacetime_cloud import _lean_vertex_shader
+    from evpose.widgets.spacetime_view import SpaceTimeView
 
     assert _lean_vertex_shader("void main() {}") is None
     monkeypatch.setattr(SpaceTimeView, "lean_upload", False)
@@ -259,7 +260,7 @@ def test_coarse_subset_while_the_camera_moves(qtbot, view, session):
     """Mouse press on the canvas draws a time-uniform prefix of the points; release draws all again."""
     from PySide6 import QtCore
 
-    from evpose.widgets.spacetime_view import LOD_POINTS
+    from evpose.widgets.spacetime_points import LOD_POINTS, draw_order
 
     d = sheet(session, 1, n=200_000, seed=3)
     view.set_data(d)
@@ -275,7 +276,7 @@ def test_coarse_subset_while_the_camera_moves(qtbot, view, session):
     assert reddish(coarse).sum() < reddish(full).sum()
     assert np.array_equal(full, again)
     # the coarse prefix is uniform in time: it covers the whole span, not just its start
-    idx, n_lod = view._draw_order(len(d.points))
+    idx, n_lod = draw_order(len(d.points), view.point_layer.stride)
     t_lod = d.points[idx[:n_lod], 2]
     assert n_lod <= LOD_POINTS and t_lod.min() < -40 and t_lod.max() > 40
 

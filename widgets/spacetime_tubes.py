@@ -1,0 +1,88 @@
+"""The objects' tubes in the space-time view: each object's projected silhouettes stacked along t as
+closed polylines, all objects in one ``Line`` visual (segment pairs) over a white casing.
+
+A clock offset between the event camera and the pose source shows as a *shear* between these tubes
+(built from the labelled poses) and the event sheets a moving edge sweeps.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from evpose.widgets.spacetime_style import (
+    ORDER_TUBE_CASING,
+    ORDER_TUBES,
+    TUBE_CASING_PX,
+    TUBE_CASING_RGBA,
+    TUBE_WIDTH_PX,
+)
+
+
+def tube_segments(tubes, hidden) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The tubes of the objects not in ``hidden`` as one segment list.
+
+    Parameters
+    ----------
+    tubes : list of (name, (r, g, b) 0-255, list of (M, 3) polylines in (x px, y px, t ms))
+    hidden : collection of object names
+
+    Returns
+    -------
+    (vertices (V, 3) float32, colours (V, 4) float32 RGBA in [0, 1], segments (S, 2) uint32), or None
+    when nothing is to be drawn. Each polyline of at least two vertices is closed.
+    """
+    verts, segs, cols = [], [], []
+    base = 0
+    for name, rgb, polys in tubes:
+        if name in hidden:
+            continue
+        rgba = np.array([*(c / 255.0 for c in rgb), 1.0], np.float32)
+        for poly in polys:
+            m = len(poly)
+            if m < 2:
+                continue
+            verts.append(np.asarray(poly, np.float32))
+            idx = base + np.arange(m)
+            segs.append(np.stack([idx, np.roll(idx, -1)], axis=1))   # closed polyline
+            cols.append(np.broadcast_to(rgba, (m, 4)))
+            base += m
+    if not verts:
+        return None
+    return np.concatenate(verts), np.concatenate(cols), np.concatenate(segs).astype(np.uint32)
+
+
+class TubeLayer:
+    """The tube and casing visuals; ``upload_counts["tubes"]`` counts the uploads."""
+
+    def __init__(self, parent, upload_counts: dict):
+        from vispy import scene
+
+        self.upload_counts = upload_counts
+        self._key = None
+        self.casing = scene.visuals.Line(parent=parent, connect="segments", width=TUBE_CASING_PX,
+                                         color=TUBE_CASING_RGBA, method="gl", antialias=False)
+        self.casing.set_gl_state("translucent", depth_test=False)
+        self.casing.order = ORDER_TUBE_CASING
+        self.casing.visible = False
+        self.line = scene.visuals.Line(parent=parent, connect="segments", width=TUBE_WIDTH_PX,
+                                       method="gl", antialias=False)
+        self.line.set_gl_state("translucent", depth_test=False)
+        self.line.order = ORDER_TUBES
+        self.line.visible = False
+
+    def update(self, tubes, hidden) -> bool:
+        """Draw the tubes of the objects not ``hidden`` (see :func:`tube_segments`); True when what is
+        drawn changed (nothing is uploaded otherwise)."""
+        packed = tube_segments(tubes, hidden)
+        key = None if packed is None else (packed[0].tobytes(), packed[1].tobytes())
+        if key == self._key:
+            return False
+        self._key = key
+        if packed is None:
+            self.line.visible = self.casing.visible = False
+        else:
+            v, c, s = packed
+            self.casing.set_data(pos=v, connect=s)
+            self.line.set_data(pos=v, color=c, connect=s)
+            self.line.visible = self.casing.visible = True
+            self.upload_counts["tubes"] += 1
+        return True
