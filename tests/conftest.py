@@ -45,7 +45,7 @@ def private_cache(tmp_path_factory, monkeypatch):
     return xdg / "evpose" / "msidx"
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def assets_dir() -> Path:
     if not (ASSETS / "camera_davis346.json").is_file():
         pytest.skip(f"E-POSE assets not found at {ASSETS}")

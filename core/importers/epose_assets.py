@@ -108,7 +108,7 @@ def load_epose_assets(ctx: ImportContext, assets, scene: str | None, sequence: s
         raise ImportFailure(cam_file, "(file)", "-", "not found (expected an assets folder like shared/assets/epose)")
     camera = load_camera(cam_file, ctx)
     scenes_file = assets / "scenes.json"
-    scenes = _read_scenes(scenes_file)
+    scenes = read_scenes(scenes_file)
     if scene is None:
         if need_scene:
             raise ImportFailure(scenes_file, "(options)", "--scene", f"give --scene (one of {', '.join(scenes)})")
@@ -152,7 +152,7 @@ def load_epose_assets(ctx: ImportContext, assets, scene: str | None, sequence: s
     return EposeAssets(camera, key, out, offset)
 
 
-def _read_scenes(scenes_file: Path) -> dict:
+def read_scenes(scenes_file: Path) -> dict:
     """The ``scenes`` mapping of ``scenes.json`` (scene name -> ``{"objects": {name: T_base_obj}}``)."""
     with wrap_errors(scenes_file, "(file)", "scenes", "cannot read"):
         data = json.loads(scenes_file.read_text())
@@ -170,7 +170,8 @@ def _n_objects(scene: dict) -> int:
     return len(objs) if isinstance(objs, (dict, list)) else 0
 
 
-def _time_shift(ctx: ImportContext, path: Path, scene_key: str, sequence: str) -> int:
+def read_time_shifts(path: Path) -> dict[str, dict[str, tuple[str, str, int]]]:
+    """``time_shifts.csv`` as ``{scene: {sequence: (sequence, shift_s text, line number)}}``, names as published."""
     with wrap_errors(path, "(file)", "-", "cannot read"):
         text = path.read_text(encoding="utf-8-sig")
     rows = list(csv.reader(io.StringIO(text)))
@@ -183,12 +184,24 @@ def _time_shift(ctx: ImportContext, path: Path, scene_key: str, sequence: str) -
         if len(row) < 3:
             raise ImportFailure(path, f"line {ln}", "shift_s", f"expected 3 columns, got {len(row)}")
         table.setdefault(row[0].strip(), {})[row[1].strip()] = (row[1].strip(), row[2].strip(), ln)
+    return table
+
+
+def lookup_time_shift(table: dict, path: Path, scene_key: str, sequence: str) -> tuple[str, str, str, int, str]:
+    """The row of ``scene_key`` / ``sequence`` in a :func:`read_time_shifts` table: ``(scene as published,
+    sequence as published, shift_s text, line, how the scene matched)``; the sequence matches case-insensitively.
+    Raises :class:`ImportFailure` naming ``path`` when there is no such row."""
     sname, how = match_name(scene_key, table, file=path, record="scene", fld="scene")
     seqs = table[sname]
     hits = [s for s in seqs if s.lower() == sequence.strip().lower()]
     if not hits:
         raise ImportFailure(path, f"scene {sname!r}", "sequence", f"no sequence {sequence!r} (have: {', '.join(seqs)})")
     seq, val, ln = seqs[hits[0]]
+    return sname, seq, val, ln, how
+
+
+def _time_shift(ctx: ImportContext, path: Path, scene_key: str, sequence: str) -> int:
+    sname, seq, val, ln, how = lookup_time_shift(read_time_shifts(path), path, scene_key, sequence)
     try:
         shift_s = float(val)
     except ValueError:
