@@ -80,6 +80,8 @@ def test_journal_cut_in_the_middle_is_reported_not_half_applied(scene_copy):
     whole, _ = read_journal(path)
     exp, exp_base, exp_rev = whole.canonical(), whole.base, whole.revision
     assert exp == s.scene.corrections.canonical()
+    # the checksum comes first: a loss that takes it must take "format" too (refused), or only the checksum line
+    assert list(json.loads(full))[:2] == ["sha256", "format"]
     lines = full.splitlines(keepends=True)
     assert len(lines) > 20
     restored = reported = 0
