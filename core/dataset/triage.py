@@ -1,0 +1,266 @@
+"""Triage of a dataset: which scenes, objects and windows to look at first, and why.
+
+:func:`triage` reads the document ``dataset report`` collects (a
+:class:`~evpose.core.dataset.batch.BatchResult` of :func:`evpose.core.dataset.tasks.triage_task`: per scene
+``info``, ``sync`` (the rate estimate, never applied), ``score`` (10 ms windows) and ``review``) and
+returns the report's document (``dataset report --json``): per scene the facts and its flags, and on top
+one ranked list of everything flagged, worst first. The HTML report (:mod:`evpose.core.dataset.report_html`)
+draws this document and nothing else.
+
+What is flagged (thresholds are the module constants, echoed in the document's ``thresholds``):
+
+* a scene that failed (always first);
+* the clock: the rate estimate disagrees with the clock in effect by more than :data:`CLOCK_K_SIGMA`
+  standard errors, where the estimate's own ``offset_std_us`` is widened by :data:`CLOCK_MODEL_ERROR_US`
+  (``docs/sync.md``: the rate stage's model error, ~0.4-1.2 ms, is not in its standard error); the
+  estimate is not reliable; its standard error is above :data:`CLOCK_LOOSE_STD_US` or unbounded; the
+  estimated skew drifts more than :data:`MAX_SKEW_DRIFT_US` from the clock in effect over the scene;
+* more than :data:`MAX_UNLABELED_SHARE` of the windows without a label (trajectory holes, outside it);
+* an object whose median alignment score is below :data:`MIN_MEDIAN_SCORE` (0 is "no better than noise";
+  on the synthetic scenes the true poses score ~0.35-0.45 and a 5 mm / 3 degree error or a 20 ms clock
+  error 0.01-0.3), or that no window scores.
+
+The clock is judged against the clock in effect (the manifest prior plus any stored correction: what the
+labels use now), so a scene whose estimate was applied leaves the list; the distance to the prior is
+reported beside it.
+"""
+from __future__ import annotations
+
+import math
+
+from evpose.core.dataset.triage_scores import (
+    HIST_EDGES,
+    MIN_EVENTS_NEAR,
+    WORST_WINDOWS,
+    object_scores,
+    unlabeled_counts,
+)
+from evpose.core.errors import InputError
+
+__all__ = [
+    "CLOCK_K_SIGMA",
+    "CLOCK_LOOSE_STD_US",
+    "CLOCK_MODEL_ERROR_US",
+    "MAX_SKEW_DRIFT_US",
+    "MAX_UNLABELED_SHARE",
+    "MIN_MEDIAN_SCORE",
+    "SEVERITY_FAILED",
+    "TRIAGE_FORMAT",
+    "TriageError",
+    "triage",
+]
+
+TRIAGE_FORMAT = "evpose-triage/1"
+#: A clock estimate further than this many (widened) standard errors from the clock in effect is flagged.
+CLOCK_K_SIGMA = 3.0
+#: Model error of the rate estimate added in quadrature to its standard error (µs, docs/sync.md).
+CLOCK_MODEL_ERROR_US = 1000.0
+#: A clock estimate whose standard error is above this (µs) pins the clock too loosely to check it.
+CLOCK_LOOSE_STD_US = 2000.0
+#: An estimated skew whose drift against the clock in effect over the scene exceeds this (µs) is flagged.
+MAX_SKEW_DRIFT_US = 2000.0
+#: A scene with more than this share of its windows without a label is flagged.
+MAX_UNLABELED_SHARE = 0.10
+#: An object whose median score over its scored windows is below this is flagged.
+MIN_MEDIAN_SCORE = 0.15
+#: Severity of a failed scene (above any other flag's, which are capped well below it).
+SEVERITY_FAILED = 100.0
+#: Category weights of the severities (a flag's severity is its weight times how far past its threshold).
+_W_CLOCK, _W_OBJECT, _W_UNLABELED, _W_LOOSE = 3.0, 2.0, 1.0, 1.0
+_CAP = 10.0
+
+
+class TriageError(InputError):
+    """A triage input document lacks a field the report needs; the message names the scene and the field."""
+
+
+def triage(batch_json: dict, order: list | None = None) -> dict:
+    """The triage report's document of a dataset.
+
+    Parameters
+    ----------
+    batch_json : dict
+        ``{"dataset", "scenes": {name: triage_task document}, "failed": {name: error}, "runtime_s"}``.
+    order : list of str, optional
+        Scene names in dataset order (default: the scenes, then the failed ones, as they come).
+
+    Returns
+    -------
+    dict
+        JSON-able: ``format``, ``dataset``, ``runtime_s``, ``summary``, ``thresholds``, ``ranked`` (every
+        flag, worst first: ``rank``, ``scene``, ``object``, ``window``, ``t_label_us``, ``kind``,
+        ``severity``, ``reason``) and ``scenes`` (one record per scene, in dataset order).
+    """
+    scenes_in = batch_json.get("scenes") or {}
+    failed_in = batch_json.get("failed") or {}
+    names = list(order) if order is not None else [*scenes_in, *(n for n in failed_in if n not in scenes_in)]
+    names += [n for n in [*scenes_in, *failed_in] if n not in names]
+    records = []
+    for name in names:
+        if name in failed_in:
+            records.append(_failed_record(name, str(failed_in[name])))
+        else:
+            records.append(_scene_record(name, scenes_in[name]))
+    position = {r["name"]: k for k, r in enumerate(records)}
+    ranked = [dict(f, scene=r["name"]) for r in records for f in r["flags"]]
+    ranked.sort(key=lambda e: (-e["severity"], position[e["scene"]], e["object"] or "", _num(e["window"], -1),
+                               e["kind"]))
+    ranked = [{"rank": k + 1, "scene": e["scene"], **{f: e[f] for f in _FLAG_FIELDS}} for k, e in enumerate(ranked)]
+    return {"format": TRIAGE_FORMAT, "dataset": str(batch_json.get("dataset", "")),
+            "runtime_s": float(batch_json.get("runtime_s") or 0.0), "summary": _summary(records),
+            "thresholds": _thresholds(), "ranked": ranked, "scenes": records}
+
+
+_FLAG_FIELDS = ("object", "window", "t_label_us", "kind", "severity", "reason")
+
+
+def _flag(kind: str, severity: float, reason: str, obj=None, window=None, t_label_us=None) -> dict:
+    return {"object": obj, "window": window, "t_label_us": t_label_us, "kind": kind,
+            "severity": round(float(severity), 3), "reason": reason}
+
+
+def _num(x, default):
+    return default if x is None else x
+
+
+def _failed_record(name: str, error: str) -> dict:
+    return {"name": name, "status": "failed", "error": error, "path": None, "n_events": None, "duration_s": None,
+            "t0_us": None,
+            "objects": [], "windows": None, "clock": None, "scores": {}, "review": None,
+            "flags": [_flag("failed", SEVERITY_FAILED, f"failed: {error}")]}
+
+
+def _scene_record(name: str, doc: dict) -> dict:
+    try:
+        info, sync, score, review = doc["info"], doc["sync"], doc["score"], doc["review"]
+        objects = list(info["objects"])
+        windows = _windows(info, score)
+        clock = _clock(info, sync)
+        scores = {n: object_scores(score, n) for n in objects}
+        rec = {"name": name, "status": "ok", "error": None, "path": info.get("path"),
+               "n_events": int(info["n_events"]), "duration_s": float(info["duration_s"]), "t0_us": info["t0_us"],
+               "objects": objects, "windows": windows, "clock": clock, "scores": scores,
+               "review": dict(review)}
+    except KeyError as exc:
+        raise TriageError(f"scenes.{name}: missing field {exc.args[0]!r} in its triage document") from None
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise TriageError(f"scenes.{name}: malformed triage document ({exc})") from None
+    clock_flags = _clock_flags(clock)
+    clock_wrong = any(f["kind"] in ("clock", "skew") for f in clock_flags)
+    rec["flags"] = clock_flags + _unlabeled_flags(windows) + _object_flags(scores, clock_wrong)
+    return rec
+
+
+def _windows(info: dict, score: dict) -> dict:
+    n = int(score["n_windows"])
+    holes, outside = unlabeled_counts(score)
+    unlabeled = int(score["unlabeled"])
+    traj = info["trajectory"]
+    first = score["windows"][0] if score["windows"] else None
+
+    def share(k):
+        return k / n if n else None
+
+    return {"n_windows": n, "window_us": None if first is None else int(first["t1_us"]) - int(first["t0_us"]),
+            "unlabeled": unlabeled, "in_holes": holes, "outside_trajectory": outside,
+            "unlabeled_share": share(unlabeled), "holes_share": share(holes), "outside_share": share(outside),
+            "n_holes": len(traj["holes"]), "info_windows_in_holes": int(traj["windows_in_holes"])}
+
+
+def _clock(info: dict, sync: dict) -> dict:
+    c = info["clock"]
+    est, std, pinned = sync["offset_us"], sync["offset_std_us"], sync.get("offset_pinned")
+    effect, prior = int(c["offset_us"]), int(c["prior_offset_us"])
+    out = {"reliable": bool(sync["reliable"]), "reason": sync["reason"], "estimate_offset_us": est,
+           "offset_std_us": std, "offset_pinned": pinned, "effect_offset_us": effect, "prior_offset_us": prior,
+           "corrected": effect != prior or float(c["skew_ppm"]) != float(c["prior_skew_ppm"]),
+           "delta_effect_us": None, "delta_prior_us": None, "sigma_total_us": None, "n_sigma": None,
+           "estimate_skew_ppm": sync["skew_ppm"], "effect_skew_ppm": float(c["skew_ppm"]),
+           "prior_skew_ppm": float(c["prior_skew_ppm"]), "skew_drift_us": None,
+           "duration_s": float(info["duration_s"])}
+    if est is None:
+        return out
+    out["delta_effect_us"], out["delta_prior_us"] = int(est) - effect, int(est) - prior
+    if pinned is not False:
+        sigma = math.hypot(std or 0.0, CLOCK_MODEL_ERROR_US)
+        out["sigma_total_us"] = sigma
+        out["n_sigma"] = abs(out["delta_effect_us"]) / sigma
+    if sync["skew_ppm"] is not None:
+        out["skew_drift_us"] = (float(sync["skew_ppm"]) - out["effect_skew_ppm"]) * out["duration_s"]
+    return out
+
+
+def _ms(us: float) -> str:
+    return f"{us / 1000:+.1f} ms"
+
+
+def _clock_flags(c: dict) -> list:
+    if not c["reliable"]:
+        return [_flag("clock", _W_CLOCK * 2, f"clock estimate not reliable: {c['reason'] or 'no reason given'}")]
+    flags = []
+    against = "the clock in effect (prior + correction)" if c["corrected"] else "the prior"
+    std = c["offset_std_us"]
+    if c["n_sigma"] is not None and c["n_sigma"] > CLOCK_K_SIGMA:
+        pm = "" if std is None else f" ± {std / 1000:.1f} ms"
+        extra = f"; {_ms(c['delta_prior_us'])} from the prior" if c["corrected"] else ""
+        flags.append(_flag("clock", _W_CLOCK * min(c["n_sigma"] / CLOCK_K_SIGMA, _CAP),
+                           f"clock {_ms(c['delta_effect_us'])}{pm} from {against} ({c['n_sigma']:.0f} σ){extra}"))
+    if c["offset_pinned"] is False:
+        flags.append(_flag("clock_uncertain", _W_LOOSE * 5,
+                           "clock not pinned by the event rate (σ unbounded): check it with sync --edges"))
+    elif std is not None and std > CLOCK_LOOSE_STD_US:
+        flags.append(_flag("clock_uncertain", _W_LOOSE * min(std / CLOCK_LOOSE_STD_US, 5),
+                           f"clock estimate loose: σ {std / 1000:.1f} ms > {CLOCK_LOOSE_STD_US / 1000:g} ms"))
+    drift = c["skew_drift_us"]
+    if drift is not None and abs(drift) > MAX_SKEW_DRIFT_US:
+        flags.append(_flag("skew", _W_CLOCK * min(abs(drift) / MAX_SKEW_DRIFT_US, _CAP),
+                           f"skew {c['estimate_skew_ppm'] - c['effect_skew_ppm']:+.1f} ppm from {against}: "
+                           f"{_ms(drift)} drift over the scene"))
+    return flags
+
+
+def _unlabeled_flags(w: dict) -> list:
+    share = w["unlabeled_share"]
+    if share is None or share <= MAX_UNLABELED_SHARE:
+        return []
+    parts = [p for p, k in (("trajectory holes", w["in_holes"]), ("outside the trajectory", w["outside_trajectory"]))
+             if k]
+    why = f" ({', '.join(parts)})" if parts else ""
+    return [_flag("unlabeled", _W_UNLABELED * min(share / MAX_UNLABELED_SHARE, _CAP),
+                  f"{100 * share:.0f} % of windows unlabeled{why}")]
+
+
+def _object_flags(scores: dict, clock_flagged: bool) -> list:
+    flags = []
+    hint = " (the clock is flagged too: check it first)" if clock_flagged else ""
+    for name, s in scores.items():
+        if s["n_valid"] == 0:
+            flags.append(_flag("object", _W_OBJECT, f"{name}: no window scored (out of view or too few events)",
+                               obj=name))
+            continue
+        median = s["quantiles"]["p50"]
+        if median >= MIN_MEDIAN_SCORE:
+            continue
+        worst = s["worst"][0] if s["worst"] else None
+        where = f", worst window {worst['index']} ({worst['score']:.2f})" if worst else ""
+        sev = _W_OBJECT * min(MIN_MEDIAN_SCORE / max(median, MIN_MEDIAN_SCORE / _CAP), _CAP)
+        flags.append(_flag("object", sev, f"{name}: median score {median:.2f}{where}{hint}", obj=name,
+                           window=worst and worst["index"], t_label_us=worst and worst["t_label_us"]))
+    return flags
+
+
+def _summary(records: list) -> dict:
+    ok = [r for r in records if r["status"] == "ok"]
+    return {"n_scenes": len(records), "n_failed": len(records) - len(ok),
+            "n_flagged": sum(1 for r in records if r["flags"]),
+            "n_events": sum(r["n_events"] for r in ok), "duration_s": sum(r["duration_s"] for r in ok),
+            "n_windows": sum(r["windows"]["n_windows"] for r in ok),
+            "verified_windows": sum(int(r["review"].get("verified_windows", 0)) for r in ok)}
+
+
+def _thresholds() -> dict:
+    return {"clock_k_sigma": CLOCK_K_SIGMA, "clock_model_error_us": CLOCK_MODEL_ERROR_US,
+            "clock_loose_std_us": CLOCK_LOOSE_STD_US, "max_skew_drift_us": MAX_SKEW_DRIFT_US,
+            "max_unlabeled_share": MAX_UNLABELED_SHARE, "min_median_score": MIN_MEDIAN_SCORE,
+            "min_events_near": MIN_EVENTS_NEAR, "worst_windows": WORST_WINDOWS,
+            "score_histogram_edges": list(HIST_EDGES)}
