@@ -26,9 +26,11 @@ from evpose.core.dataset.dataset import Dataset, DatasetError
 from evpose.core.dataset.import_bags import import_dataset, plan_bags
 
 # bag (relative to RAW_DIR) -> its E-POSE scene (scenes.json key) and sequence (as published in time_shifts.csv)
-EPOSE = {"potted meat/t_10_ML.bag": ("potted_meat_can", "T_10_ml"), "Mustard_t_10_GL.bag": ("mustard_bottle", "t_10_gl")}
-#: their published clock priors (time_shifts.csv, seconds)
-SHIFT_S = {"potted_meat_can_T_10_ml": -0.0229971408843994, "mustard_bottle_t_10_gl": -0.0371060371398926}
+EPOSE = {"potted meat/t_10_ML.bag": ("potted_meat_can", "T_10_ml"), "Mustard_t_10_GL.bag": ("mustard_bottle", "t_10_gl"),
+         "Potted_Meat_Can_R_05_LL.bag": ("potted_meat_can", "R_05_ll")}
+#: their published clock priors (time_shifts.csv, seconds; potted meat R_05_ll was published as 0: a warning)
+SHIFT_S = {"potted_meat_can_T_10_ml": -0.0229971408843994, "mustard_bottle_t_10_gl": -0.0371060371398926,
+           "potted_meat_can_R_05_ll": 0.0}
 GOOD = {rel: f"{s}_{q}" for rel, (s, q) in EPOSE.items()}       # -> dataset scene name
 UNMATCHED = "calibration_run.bag"
 BROKEN = "wood_block_R_10_ml.bag"          # matches wood_block / R_10_ml, but the file is cut in half
@@ -211,7 +213,8 @@ def test_each_scene_equals_the_single_scene_import(first_run, raw_dir, assets_di
                 assert got[f] == want[f], f
         assert doc["scene"] == str(out / name) and ref["scene"] == str(single)
         assert doc["report"] == str(out / name / "import_report.json") and doc["runtime_s"] > 0
-        assert load_manifest(out / name).clock_offset_us == round(SHIFT_S[name] * 1e6) != 0
+        assert load_manifest(out / name).clock_offset_us == round(SHIFT_S[name] * 1e6)
+        assert any("published shift" in w for w in doc["warnings"]) == (SHIFT_S[name] == 0)
         assert {k: v for k, v in doc.items() if k not in ("scene", "report", "runtime_s", "skipped", "bag", "match")} \
             == {k: v for k, v in ref.items() if k not in ("scene", "report", "runtime_s")}
 
@@ -226,8 +229,8 @@ def test_unmatched_and_broken_bags_fail_alone(first_run, raw_dir):
     assert "ROS1 bag" in res.failed["wood_block_R_10_ml"]
     assert sorted(os.listdir(out)) == sorted(GOOD.values())          # nothing of the failed bags, no staging
     fractions = [f for f, _ in seen]
-    assert fractions == sorted(fractions) and fractions[0] == 0.25 and fractions[-1] == 1.0 and len(fractions) == 4
-    assert seen[-1][1] == "4/4 bags, 2 failed"
+    assert fractions == sorted(fractions) and fractions[0] == 0.2 and fractions[-1] == 1.0 and len(fractions) == 5
+    assert seen[-1][1] == "5/5 bags, 2 failed"
     assert res.runtime_s > 0
 
 
@@ -254,7 +257,9 @@ def test_rerun_leaves_what_is_not_this_bags_scene_alone(first_run, raw_dir, asse
     (out / "mustard_bottle_t_10_gl" / "mine.txt").write_text("a user's file")
     before = stat_all(out)
     res = import_dataset(client, raw, assets_dir, out)
-    assert stat_all(out) == before and not res.scenes
+    after = stat_all(out)
+    assert {k: after.get(k) for k in before} == before                # nothing touched
+    assert {k.split("/")[0] for k in set(after) - set(before)} == set(res.scenes) == {"potted_meat_can_R_05_ll"}
     assert "holds a scene imported from" in res.failed["potted_meat_can_T_10_ml"]
     assert "is not a scene imported by evpose; it is left alone" in res.failed["mustard_bottle_t_10_gl"]
     # the same bag, changed after its import, is not replaced either
