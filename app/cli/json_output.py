@@ -9,30 +9,15 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import sys
 from contextvars import ContextVar
 
-__all__ = ["emit", "dumps", "to_jsonable", "stdout_reserved_for_json"]
+from evpose.core.data.json_values import to_jsonable
+
+__all__ = ["emit", "dumps", "stdout_reserved_for_json"]
 
 #: The stream the JSON document goes to while stdout is reserved (None: not reserved).
 _document_stream: ContextVar = ContextVar("evpose_cli_document_stream", default=None)
-
-
-def to_jsonable(o):
-    """``json`` fallback for NumPy values: integers -> int, floats -> float (null when not finite),
-    arrays -> lists; anything else is a bug (``TypeError``)."""
-    import numpy as np  # only reached for non-JSON values; a command printing them has loaded numpy
-
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.floating):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, np.bool_):
-        return bool(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def dumps(data) -> str:

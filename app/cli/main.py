@@ -14,6 +14,7 @@ import argparse
 import sys
 
 from evpose.app.cli.align import add_align_parsers
+from evpose.app.cli.dataset import add_dataset_parser
 from evpose.app.cli.errors import EXIT_BAD_INPUT
 from evpose.app.cli.export import add_export_parser
 from evpose.app.cli.gui import add_demo_parser, add_gui_parser
@@ -47,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
     add_import_parser(sub)
     add_align_parsers(sub)
+    add_dataset_parser(sub)
     return p
 
 

@@ -41,20 +41,26 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
-def load_manifest(path, *, check_files: bool = True) -> SceneManifest:
+def load_manifest(path, *, check_files: bool = True, defaults: dict | None = None) -> SceneManifest:
     """Read and validate ``scene.toml`` (``path`` may be the file or its folder).
 
     Parameters
     ----------
     check_files : bool
         Check that the events, trajectory and mesh files exist.
+    defaults : dict, optional
+        Shared tables of a dataset (``dataset.toml``'s ``[defaults]``: ``camera``, ``trajectory``
+        without ``path``, ``clock``) under the scene's own: a key the scene gives wins.
     """
     path = Path(path)
     if path.is_dir():
         path = path / SCENE_FILENAME
     if not path.exists():
         raise SceneError(path, "", "scene manifest not found (expected a scene folder or a scene.toml)")
-    reader = _ManifestReader(path, _read_toml(path), check_files)
+    data = _read_toml(path)
+    if defaults:
+        data = merge_defaults(defaults, data)
+    reader = _ManifestReader(path, data, check_files)
     name = reader.name()
     camera = reader.camera()
     events_path = reader.events_path()
@@ -63,6 +69,19 @@ def load_manifest(path, *, check_files: bool = True) -> SceneManifest:
     objects = reader.objects()
     return SceneManifest(path, name, camera, events_path, trajectory_path, frame, hand_eye,
                          offset_us, skew_ppm, objects, reader.warnings, max_gap_us)
+
+
+def merge_defaults(defaults: dict, data: dict) -> dict:
+    """``data`` with the tables of ``defaults`` filled in below it (one level deep: a table the scene
+    gives keeps its own keys and takes the missing ones from the default)."""
+    out = dict(data)
+    for key, table in defaults.items():
+        mine = out.get(key)
+        if isinstance(table, dict) and isinstance(mine, dict):
+            out[key] = {**table, **mine}
+        elif key not in out:
+            out[key] = table
+    return out
 
 
 def _read_toml(path: Path) -> dict:

@@ -34,10 +34,11 @@ class Scene:
         self.corrections = corrections if corrections is not None else Corrections(scene_name=manifest.name)
 
     @classmethod
-    def open(cls, path, *, corrections: Corrections | str | None = "auto") -> "Scene":
+    def open(cls, path, *, corrections: Corrections | str | None = "auto", defaults: dict | None = None) -> "Scene":
         """Open a scene folder or ``scene.toml``; ``corrections="auto"`` loads ``corrections.json``
-        beside it when present."""
-        manifest = load_manifest(path)
+        beside it when present; ``defaults``: a dataset's shared tables
+        (:func:`evpose.core.data.manifest_reader.load_manifest`)."""
+        manifest = load_manifest(path, defaults=defaults)
         if isinstance(corrections, str) and corrections == "auto":
             cpath = manifest.root / CORRECTIONS_FILENAME
             corrections = (Corrections.load(cpath, known_objects=[o.name for o in manifest.objects])

@@ -51,7 +51,7 @@ def make_writer(fmt: str, format_options: dict | None = None):
 def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, window_events: int | None = None,
                  label_at: str = "center", only_verified: bool = False, objects=None, margin_m: float = 0.0,
                  jobs: int = 1, force: bool = False, progress=None, cancel=None, format_options: dict | None = None,
-                 durable=True, include_stale: bool = False) -> ExportSummary:
+                 durable=True, include_stale: bool = False, executor=None) -> ExportSummary:
     """Export a scene's corrected labels.
 
     Parameters
@@ -89,6 +89,9 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
     cancel : callable, optional
         ``cancel() -> bool``; True stops the export, raising :class:`evpose.core.data.events.Cancelled`. The
         folder is left without partial or temp files and a rerun resumes.
+    executor : evpose.core.export.pool.WindowExecutor, optional
+        Runs the chunks of windows elsewhere instead of ``jobs`` local processes (a Dask cluster:
+        :class:`evpose.core.dataset.dask_windows.DaskWindows`); the files are the same.
     format_options : dict, optional
         Writer options: epose ``png_compression``; bop ``K_new`` (3x3, default K), ``scene_id``,
         ``png_compression``; h5 ``three_channel`` (bool), ``compression`` ("blosc-lz4" | "gzip" | None).
@@ -116,10 +119,10 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, w
             return run_export(scene, writer, out_dir, window_us=window_us, window_events=window_events,
                               label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
                               jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel,
-                              include_stale=include_stale)
+                              include_stale=include_stale, executor=executor)
         finally:
             scene.close()
     return run_export(scene_or_path, writer, out_dir, window_us=window_us, window_events=window_events,
                       label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
                       jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel,
-                      include_stale=include_stale)
+                      include_stale=include_stale, executor=executor)

@@ -1,4 +1,6 @@
-"""Running the window tasks of an export: in this process, or in a ``spawn`` process pool.
+"""Running the window tasks of an export: in this process, in a ``spawn`` process pool, or through a
+window executor (:class:`WindowExecutor`, e.g. :class:`evpose.core.dataset.dask_windows.DaskWindows` on a
+Dask cluster).
 
 Each result goes to the writer's :meth:`~evpose.core.export.writer.FormatWriter.accept` in the parent,
 which makes accepted windows durable every :data:`FLUSH_WINDOWS` windows or :data:`FLUSH_SECONDS`
@@ -18,7 +20,7 @@ import time
 from evpose.core.data.events import Cancelled
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
-__all__ = ["FLUSH_WINDOWS", "FLUSH_SECONDS", "run_windows"]
+__all__ = ["FLUSH_WINDOWS", "FLUSH_SECONDS", "WindowExecutor", "chunk_tasks", "run_worker_chunk", "run_windows"]
 
 #: The parent makes accepted windows durable (syncfs + journal fsync, or HDF5 flush + fsync) after this
 #: many windows or seconds, whichever comes first: a crash redoes at most that much work, and syncfs,
@@ -27,12 +29,38 @@ FLUSH_WINDOWS = 64
 FLUSH_SECONDS = 5.0
 
 
-def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, report, cancel, jobs: int) -> None:
+class WindowExecutor:
+    """Runs chunks of window tasks somewhere else (another process, another machine).
+
+    :meth:`run` yields ``(results, timings)`` per chunk in completion order, each result the
+    ``(record, payload)`` of :meth:`~evpose.core.export.worker.WorkerContext.run`; closing the
+    generator early (an error, a cancel) cancels the chunks not yet done. ``key`` names the export
+    configuration (a worker may keep one context per key). ``workers`` says how many chunks run at once.
+    """
+
+    workers = 1
+
+    def run(self, spec: WorkerSpec, chunks: list[list], key: str):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+def chunk_tasks(tasks: list, workers: int) -> list[list]:
+    """Contiguous chunks of about ``len(tasks) / (8 workers)`` tasks (1..32): small enough to balance
+    the load and to lose little to a killed worker, large enough to keep the per-chunk cost low."""
+    size = max(1, min(32, math.ceil(len(tasks) / (max(workers, 1) * 8))))
+    return [tasks[i:i + size] for i in range(0, len(tasks), size)]
+
+
+def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, report, cancel, jobs: int,
+                executor: WindowExecutor | None = None) -> None:
     """Process ``tasks`` (:class:`~evpose.core.export.writer.WindowTask`) and accept their results:
     ``records`` gets each window's record, ``summary`` the counts and stage timings, ``report(n_done)``
-    is called after each window (serial) or chunk (pool); ``cancel()`` True raises
-    :class:`~evpose.core.data.events.Cancelled`."""
-    if jobs == 1 or len(tasks) <= 1:
+    is called after each window (serial) or chunk (pool, executor); ``cancel()`` True raises
+    :class:`~evpose.core.data.events.Cancelled`. An ``executor`` takes the place of ``jobs``."""
+    if executor is not None and tasks:
+        _run_chunks(ctx, tasks, records, summary, report, cancel,
+                    lambda chunks: executor.run(spec, chunks, f"{ctx.out_dir}|{ctx.sha}"), executor.workers)
+    elif jobs == 1 or len(tasks) <= 1:
         _run_serial(ctx, spec, tasks, records, summary, report, cancel)
     else:
         _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs)
@@ -63,14 +91,29 @@ def _run_serial(ctx, spec, tasks, records, summary, report, cancel) -> None:
 def _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs) -> None:
     import multiprocessing as mp
 
-    size = max(1, min(32, math.ceil(len(tasks) / (jobs * 8))))
-    chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
     t_pool = time.perf_counter()
     pool = mp.get_context("spawn").Pool(jobs, initializer=_worker_init, initargs=(spec,))
     ok = False
     try:
-        n_done = 0
-        for results, timings in pool.imap_unordered(_worker_run, chunks):
+        _run_chunks(ctx, tasks, records, summary, report, cancel,
+                    lambda chunks: pool.imap_unordered(_worker_run, chunks), jobs, t_pool)
+        ok = True
+    finally:
+        if ok:
+            pool.close()
+        else:
+            pool.terminate()     # workers may be mid-write: their temp files are removed by the caller
+        pool.join()
+
+
+def _run_chunks(ctx, tasks, records, summary, report, cancel, start, workers: int, t_pool: float | None = None) -> None:
+    """Accept the chunk results ``start(chunks)`` yields, in completion order (``t_pool``: when the
+    workers were asked for, for ``summary.pool_startup_s``)."""
+    t_pool = time.perf_counter() if t_pool is None else t_pool
+    n_done = 0
+    results_iter = start(chunk_tasks(tasks, workers))
+    try:
+        for results, timings in results_iter:
             if n_done == 0:
                 summary.pool_startup_s = max(0.0, time.perf_counter() - t_pool - sum(timings.values()))
             for rec, payload in results:
@@ -81,13 +124,10 @@ def _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs) -> None:
             report(n_done)
             if cancel is not None and cancel():
                 raise Cancelled(f"{ctx.out_dir}: export cancelled after {n_done} windows")
-        ok = True
     finally:
-        if ok:
-            pool.close()
-        else:
-            pool.terminate()     # workers may be mid-write: their temp files are removed by the caller
-        pool.join()
+        close = getattr(results_iter, "close", None)
+        if close is not None:
+            close()
 
 
 def _maybe_flush(ctx, n_new: int = 1) -> None:
@@ -119,5 +159,10 @@ def _worker_init(spec: WorkerSpec) -> None:
 
 
 def _worker_run(tasks: list) -> tuple[list, dict]:
-    out = [_WORKER.run(t) for t in tasks]
-    return out, _WORKER.take_timings()
+    return run_worker_chunk(_WORKER, tasks)
+
+
+def run_worker_chunk(wctx: WorkerContext, tasks: list) -> tuple[list, dict]:
+    """Run a chunk of window tasks in a worker; returns their ``(record, payload)`` and the stage timings."""
+    out = [wctx.run(t) for t in tasks]
+    return out, wctx.take_timings()

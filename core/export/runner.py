@@ -50,7 +50,7 @@ __all__ = ["run_export"]
 def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window_events=None, label_at="center",
                only_verified=False, objects=None, margin_m=0.0, jobs=1, force=False, durable=True,
                include_stale=False, progress: Callable[[float, str], None] | None = None,
-               cancel: Callable[[], bool] | None = None) -> ExportSummary:
+               cancel: Callable[[], bool] | None = None, executor=None) -> ExportSummary:
     """Run one export (see :func:`evpose.core.export.export_scene` for the parameters)."""
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
@@ -77,7 +77,7 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window
         selection = _select(ctx, only_verified, include_stale)
         summary = _new_summary(ctx, selection, jobs, only_verified, include_stale)
         try:
-            records = _run(ctx, selection, summary, jobs, progress, cancel)
+            records = _run(ctx, selection, summary, jobs, progress, cancel, executor)
             _finish(ctx, selection, summary, records, t_start, progress)
         except BaseException:
             _abort(ctx)
@@ -160,7 +160,7 @@ def _progress_text(summary: ExportSummary) -> str:
     return f"{summary.written} written, {summary.skipped_complete} complete, {summary.unlabeled} unlabeled"
 
 
-def _run(ctx, selection: _Selection, summary: ExportSummary, jobs: int, progress, cancel) -> dict[int, dict]:
+def _run(ctx, selection: _Selection, summary: ExportSummary, jobs: int, progress, cancel, executor) -> dict[int, dict]:
     """Begin the writer, skip the complete windows, run the others; returns the record of every
     complete window by index."""
     writer = ctx.writer
@@ -186,7 +186,7 @@ def _run(ctx, selection: _Selection, summary: ExportSummary, jobs: int, progress
         raise Cancelled(f"{ctx.out_dir}: export cancelled")
     spec = WorkerSpec(ctx.scene.manifest, ctx.scene.corrections.to_json(), writer, str(ctx.out_dir), ctx.names,
                       ctx.sel.tolist(), writer.request(ctx.margin_m), ctx.n_digits, ctx.durable)
-    run_windows(ctx, spec, tasks, records, summary, report, cancel, jobs)
+    run_windows(ctx, spec, tasks, records, summary, report, cancel, jobs, executor)
     return records
 
 

@@ -1,0 +1,235 @@
+"""``evpose dataset info|import|sync|score|report|export``: the single-scene commands over every scene of a
+dataset (:mod:`evpose.core.dataset`), run on Dask.
+
+CLUSTER: ``--workers N`` starts a local Dask cluster of N worker processes (default: the machine's
+cores) and stops it at the end; ``--scheduler ADDR`` uses an existing cluster (``dask scheduler`` +
+``dask worker``, or dask-jobqueue on SLURM) whose workers see the dataset under the same paths.
+
+``--json`` prints one document: ``scenes`` (name -> the single-scene command's JSON), ``failed``
+(name -> the one-line error) and ``runtime_s``. A failing scene does not stop the others; the exit
+status is then :data:`EXIT_PARTIAL` (3), so scripts notice.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from evpose.app.cli.errors import CliError, command
+from evpose.app.cli.export import objects_from_args, window_us_from_args
+from evpose.app.cli.json_output import emit
+from evpose.app.cli.progress import Progress
+
+__all__ = ["add_dataset_parser", "EXIT_PARTIAL"]
+
+#: Some scenes failed (each named in ``failed`` and on stderr); the others completed.
+EXIT_PARTIAL = 3
+
+
+def _cluster_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("cluster (Dask)").add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="a local Dask cluster of N worker processes (default: the machine's cores)")
+    g.add_argument("--scheduler", metavar="ADDR", help="an existing Dask cluster, e.g. tcp://host:8786")
+    p.add_argument("--json", action="store_true", help="print one JSON document (scenes, failed, runtime_s)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def _cluster(args):
+    from evpose.core.dataset.cluster import ClusterSpec, open_client
+
+    return open_client(ClusterSpec(workers=args.workers, scheduler=args.scheduler),
+                       log=None if args.quiet else lambda line: print(f"evpose dataset: {line}", file=sys.stderr))
+
+
+def _finish(args, result, text: str) -> int:
+    """Print the result (one JSON document with ``--json``) and a line per failed scene on stderr."""
+    for name, err in result.failed.items():
+        print(f"evpose dataset {args.action}: {name}: failed: {err}", file=sys.stderr)
+    emit(args, result.to_json(), text)
+    return EXIT_PARTIAL if result.failed else 0
+
+
+def _table(result, columns) -> str:
+    """A text table: one row per scene, ``columns`` = [(header, fn(doc) -> str)]."""
+    rows = [[h for h, _ in columns]] + [[fn(doc) for _, fn in columns] for doc in result.scenes.values()]
+    rows = [[name] + r for name, r in zip(["scene"] + list(result.scenes), rows)]
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+    lines.append(f"{len(result.scenes)} scene(s) done, {len(result.failed)} failed, {result.runtime_s:.1f} s")
+    return "\n".join(lines)
+
+
+def _open_dataset(args):
+    from evpose.core.dataset.dataset import Dataset
+
+    return Dataset.open(args.dataset)
+
+
+# ------------------------------------------------------------------------------------------------- commands
+@command("dataset info")
+def cmd_info(args) -> int:
+    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.dataset.tasks import info_task
+
+    ds = _open_dataset(args)
+    with _cluster(args) as client, Progress("dataset info", not args.quiet) as progress:
+        result = map_scenes(client, ds, info_task, label="info", progress=progress)
+    return _finish(args, result, _table(result, [
+        ("events", lambda d: f"{d['n_events']:,}"), ("duration_s", lambda d: f"{d['duration_s']:.2f}"),
+        ("objects", lambda d: ",".join(d["objects"])), ("offset_us", lambda d: str(d["clock"]["offset_us"])),
+        ("holes", lambda d: str(len(d["trajectory"]["holes"])))]))
+
+
+@command("dataset sync")
+def cmd_sync(args) -> int:
+    from evpose.app.cli.sync import check_sync_args, sync_options
+    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.dataset.tasks import sync_task
+
+    check_sync_args(args)
+    ds = _open_dataset(args)
+    with _cluster(args) as client, Progress("dataset sync", not args.quiet) as progress:
+        result = map_scenes(client, ds, sync_task, sync_options(args), label="sync", progress=progress)
+
+    def offset(d):
+        return "-" if d.get("offset_us") is None else str(d["offset_us"])
+
+    def edges(d):
+        e = d.get("edges")
+        return "-" if not e else (str(e.get("offset_us")) if e.get("accepted") else "kept")
+
+    return _finish(args, result, _table(result, [
+        ("reliable", lambda d: "yes" if d.get("reliable") else "no"), ("offset_us", offset),
+        ("sigma_us", lambda d: "-" if d.get("offset_std_us") is None else f"{d['offset_std_us']:.0f}"),
+        ("edges_offset_us", edges), ("applied", lambda d: "yes" if d.get("applied") else "no")]))
+
+
+@command("dataset score")
+def cmd_score(args) -> int:
+    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.dataset.tasks import score_task
+
+    if not args.window_ms > 0:
+        raise CliError(f"--window-ms: must be a positive number of milliseconds, got {args.window_ms}")
+    ds = _open_dataset(args)
+    with _cluster(args) as client, Progress("dataset score", not args.quiet) as progress:
+        result = map_scenes(client, ds, score_task, int(round(args.window_ms * 1000)), label="score",
+                            progress=progress)
+
+    def means(d):
+        return ", ".join(f"{n} {'n/a' if s['mean_score'] is None else format(s['mean_score'], '.3f')}"
+                         for n, s in d["summary"].items())
+
+    return _finish(args, result, _table(result, [("windows", lambda d: str(d["n_windows"])), ("mean score", means)]))
+
+
+@command("dataset report")
+def cmd_report(args) -> int:
+    from evpose.core.align.sync_run import SyncOptions
+    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.dataset.report_html import write_report
+    from evpose.core.dataset.tasks import triage_task
+    from evpose.core.dataset.triage import triage
+
+    ds = _open_dataset(args)
+    with _cluster(args) as client, Progress("dataset report", not args.quiet) as progress:
+        result = map_scenes(client, ds, triage_task, SyncOptions(), label="triage", progress=progress)
+    doc = triage(result.to_json())
+    path = write_report(doc, args.out)
+    for name, err in result.failed.items():
+        print(f"evpose dataset report: {name}: failed: {err}", file=sys.stderr)
+    emit(args, doc, f"wrote {path}: {len(result.scenes)} scene(s), {len(result.failed)} failed, "
+                    f"{result.runtime_s:.1f} s")
+    return EXIT_PARTIAL if result.failed else 0
+
+
+@command("dataset export", interrupted="interrupted; rerun the same command to resume")
+def cmd_export(args) -> int:
+    from evpose.core.dataset.export import export_dataset
+
+    window_us = window_us_from_args(args)
+    objects = objects_from_args(args)
+    ds = _open_dataset(args)
+    with _cluster(args) as client, Progress(f"dataset export {args.format}", not args.quiet) as progress:
+        result = export_dataset(client, ds, args.format, args.out, progress=progress, window_us=window_us,
+                                window_events=args.window_events, label_at=args.label_at,
+                                only_verified=args.only_verified, include_stale=args.include_stale, objects=objects,
+                                margin_m=args.margin_mm * 1e-3, force=args.force)
+    return _finish(args, result, _table(result, [
+        ("written", lambda d: str(d["written"])), ("complete", lambda d: str(d["skipped_complete"])),
+        ("unlabeled", lambda d: str(d["unlabeled"])), ("windows", lambda d: str(d["windows_total"]))]))
+
+
+@command("dataset import")
+def cmd_import(args) -> int:
+    from evpose.core.dataset.import_bags import import_dataset
+
+    with _cluster(args) as client, Progress("dataset import", not args.quiet) as progress:
+        result = import_dataset(client, args.raw_dir, args.assets, args.out, progress=progress)
+    return _finish(args, result, _table(result, [("status", lambda d: str(d.get("status", "imported")))]))
+
+
+# ------------------------------------------------------------------------------------------------- parser
+def add_dataset_parser(subparsers) -> None:
+    """Register ``dataset`` and its sub-commands on the ``evpose`` sub-parser set."""
+    d = subparsers.add_parser("dataset", help="the commands over every scene of a dataset (Dask)",
+                              description="A dataset is a folder whose subfolders holding a scene.toml are its "
+                                          "scenes (name order), or a dataset.toml listing them. Each command runs "
+                                          "on a local Dask cluster (--workers N, default: the machine's cores) or "
+                                          "an existing one (--scheduler ADDR) whose workers see the same paths.")
+    sub = d.add_subparsers(dest="action", required=True, metavar="ACTION")
+
+    p = sub.add_parser("info", help="every scene's summary (evpose info)")
+    p.add_argument("dataset", metavar="DATASET")
+    _cluster_args(p)
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("import", help="import raw recordings into a dataset folder (one scene each)")
+    p.add_argument("format", choices=("epose-bag",), help="epose-bag: every E-POSE ROS1 bag under RAW_DIR")
+    p.add_argument("raw_dir", metavar="RAW_DIR")
+    p.add_argument("--assets", required=True, metavar="DIR", help="E-POSE assets (camera, models, scenes.json, "
+                   "time_shifts.csv: the published prior time shift of each sequence)")
+    p.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder to create or complete")
+    _cluster_args(p)
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("sync", help="clock estimate of every scene (evpose sync)")
+    p.add_argument("dataset", metavar="DATASET")
+    p.add_argument("--edges", action="store_true", help="then refine from event/edge alignment (see evpose sync)")
+    p.add_argument("--apply", action="store_true", help="store each reliable estimate in the scene's corrections.json")
+    p.add_argument("--range-ms", type=float, default=500.0, help="search range around the clock in effect (ms)")
+    p.add_argument("--bin-us", type=int, default=1000, help="event-rate bin (multiple of 1000 us)")
+    p.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
+    p.set_defaults(baseline=False, curve=False)
+    _cluster_args(p)
+    p.set_defaults(func=cmd_sync)
+
+    p = sub.add_parser("score", help="alignment scores of every scene (evpose score)")
+    p.add_argument("dataset", metavar="DATASET")
+    p.add_argument("--window-ms", type=float, default=10.0, help="window length (ms)")
+    _cluster_args(p)
+    p.set_defaults(func=cmd_score)
+
+    p = sub.add_parser("report", help="the triage report: one self-contained HTML file")
+    p.add_argument("dataset", metavar="DATASET")
+    p.add_argument("--out", required=True, metavar="REPORT.html")
+    _cluster_args(p)
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("export", help="export every scene (evpose export), BOP as one dataset")
+    p.add_argument("dataset", metavar="DATASET")
+    p.add_argument("--format", required=True, choices=("epose", "bop", "h5"))
+    p.add_argument("--out", required=True, metavar="DIR", help="OUT/<scene> per scene (and OUT/bop for BOP)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--window-ms", type=float, default=None, metavar="MS", help="window length (default 10 ms)")
+    g.add_argument("--window-events", type=int, default=None, metavar="N", help="events per window instead")
+    p.add_argument("--label-at", choices=("center", "end"), default="center")
+    p.add_argument("--only-verified", action="store_true", help="only windows verified in review (see evpose export)")
+    p.add_argument("--include-stale", action="store_true", help="with --only-verified: also stale verified marks")
+    p.add_argument("--objects", metavar="A,B", help="comma-separated objects to export (default all)")
+    p.add_argument("--margin-mm", type=float, default=0.0, metavar="X", help="enlarge the 3D box by X mm")
+    p.add_argument("--force", action="store_true",
+                   help="replace earlier evpose exports of a different configuration (see evpose export)")
+    p.set_defaults(jobs=1)
+    _cluster_args(p)
+    p.set_defaults(func=cmd_export)

@@ -1,0 +1,75 @@
+"""The export's chunks of windows as Dask tasks (:class:`DaskWindows`, a
+:class:`~evpose.core.export.pool.WindowExecutor`).
+
+A task is one chunk of one scene's windows with the poses the scene's driver interpolated; the worker
+opens the scene from its paths (the pickled manifest and a JSON copy of the corrections), writes the
+chunk's files atomically into the shared output folder, syncs them (``batch`` durability) and returns
+the records. The driver journals a window only after its record arrived, so a worker killed mid-chunk
+loses nothing: Dask runs the chunk again elsewhere and the rerun writes the same bytes.
+
+Each worker process keeps the contexts of the last few export configurations (scene, annotator,
+rasteriser caches), so a scene's chunks after the first pay no set-up.
+"""
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+
+from evpose.core.export.pool import WindowExecutor, run_worker_chunk
+from evpose.core.export.worker import WorkerContext, WorkerSpec
+
+__all__ = ["DaskWindows", "run_chunk"]
+
+#: Worker contexts kept per worker process (each holds an open event file and mesh caches).
+CONTEXTS_KEPT = 2
+_contexts: OrderedDict = OrderedDict()
+_lock = threading.Lock()
+
+
+def _context(spec: WorkerSpec, key: str) -> WorkerContext:
+    with _lock:
+        wctx = _contexts.get(key)
+        if wctx is None:
+            import cv2
+
+            cv2.setNumThreads(1)      # one single-threaded worker per core: OpenCV's threads would compete
+            wctx = _contexts[key] = WorkerContext(spec)
+            while len(_contexts) > CONTEXTS_KEPT:
+                _, old = _contexts.popitem(last=False)
+                old.scene.close()
+        _contexts.move_to_end(key)
+        return wctx
+
+
+def run_chunk(spec: WorkerSpec, key: str, tasks: list) -> tuple[list, dict]:
+    """The Dask task: run one chunk of windows and make its files durable before returning."""
+    from evpose.core.data import atomic
+
+    wctx = _context(spec, key)
+    out = run_worker_chunk(wctx, tasks)
+    if spec.durable == "batch":
+        atomic.sync_filesystem(spec.out_dir)     # the driver may be on another machine: sync here
+    return out
+
+
+class DaskWindows(WindowExecutor):
+    """Run chunks of windows on the workers of a ``distributed.Client``."""
+
+    def __init__(self, client, *, retries: int = 0):
+        self.client = client
+        self.retries = retries        # besides Dask's own rescheduling of tasks of a lost worker
+
+    @property
+    def workers(self) -> int:
+        return max(1, sum(self.client.nthreads().values()))
+
+    def run(self, spec: WorkerSpec, chunks: list[list], key: str):
+        from distributed import as_completed
+
+        futures = [self.client.submit(run_chunk, spec, key, chunk, pure=False, retries=self.retries)
+                   for chunk in chunks]
+        try:
+            for _, result in as_completed(futures, with_results=True):
+                yield result
+        finally:
+            self.client.cancel([f for f in futures if not f.done()])

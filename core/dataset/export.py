@@ -1,0 +1,111 @@
+"""``dataset export``: every scene exported as the single-scene command does, on a Dask cluster.
+
+Layout::
+
+    OUT/<scene name>/     the scene's export, file for file what ``evpose export SCENE --out OUT/<scene name>``
+                          writes (resumable and journaled as that command's folder)
+    OUT/bop/              (``--format bop``) one BOP dataset: ``camera.json``, ``models/`` once (``obj_id`` from
+                          the class ids), the scenes as ``000000``, ``000001``, ... in dataset order, and
+                          ``scene_names.json`` (scene id -> scene name); its files are hard links to the scenes'
+                          own files (no second copy on disk)
+
+Each scene is driven from a thread of this process (windows, poses, journal, aggregate files), and its
+chunks of windows run as Dask tasks (:class:`~evpose.core.dataset.dask_windows.DaskWindows`), so one long
+sequence spreads over all workers and several scenes keep them busy. A scene that fails is reported;
+the others go on.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from evpose.core.data.events import Cancelled
+from evpose.core.dataset.batch import BatchResult, failure_text
+from evpose.core.dataset.bop_dataset import assemble_bop
+from evpose.core.dataset.dask_windows import DaskWindows
+
+__all__ = ["export_dataset", "SCENE_DRIVERS"]
+
+#: Scenes driven at once (each keeps the workers fed with its chunks; more only holds more files open).
+SCENE_DRIVERS = 3
+
+
+def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=None, **options) -> BatchResult:
+    """Export every scene of ``dataset`` to ``out_dir/<scene name>`` through
+    :func:`evpose.core.export.export_scene` (``options``: its keyword arguments), with the windows run on
+    ``client``'s workers; for ``fmt == "bop"`` also assemble ``out_dir/bop``. Returns the
+    :class:`~evpose.core.dataset.batch.BatchResult` whose ``scenes`` are the per-scene summaries."""
+    from evpose.core.export import export_scene
+
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result = BatchResult(dataset.name)
+    stop = threading.Event()
+    fractions = dict.fromkeys((ref.name for ref in dataset.scenes), 0.0)
+    lock = threading.Lock()
+    executor = DaskWindows(client)
+
+    def report():
+        if progress is not None:
+            with lock:
+                done = sum(fractions.values()) / max(len(fractions), 1)
+                text = f"{sum(1 for f in fractions.values() if f >= 1.0)}/{len(fractions)} scenes, {len(result.failed)} failed"
+            progress(done, text)
+
+    def one(ref):
+        if stop.is_set():
+            return
+
+        def scene_progress(fraction, _msg=""):
+            fractions[ref.name] = fraction
+            report()
+        try:
+            scene = dataset.open_scene(ref)
+            try:
+                s = export_scene(scene, fmt, out_dir / ref.name, progress=scene_progress, executor=executor,
+                                 cancel=lambda: stop.is_set() or (cancel is not None and cancel()), **options)
+            finally:
+                scene.close()
+            result.scenes[ref.name] = s.to_json(with_files=False)
+        except Cancelled:
+            stop.set()
+        except Exception as exc:          # this scene is reported, the others go on
+            result.failed[ref.name] = failure_text(exc)
+        fractions[ref.name] = 1.0
+        report()
+
+    pool = ThreadPoolExecutor(max_workers=min(SCENE_DRIVERS, max(len(dataset.scenes), 1)),
+                              thread_name_prefix="evpose-scene")
+    try:
+        futures = [pool.submit(one, ref) for ref in dataset.scenes]
+        for f in futures:
+            while not f.done():             # short waits keep Ctrl-C responsive in this thread
+                _wait(f)
+        if stop.is_set() or (cancel is not None and cancel()):
+            raise Cancelled(f"{out_dir}: dataset export cancelled")
+    except BaseException:
+        stop.set()                          # drivers stop at their next chunk and leave resumable folders
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    if fmt == "bop":
+        names = [ref.name for ref in dataset.scenes]
+        done = [n for n in names if n in result.scenes]
+        try:
+            assemble_bop(out_dir, names, done)
+        except Exception as exc:
+            result.failed["bop"] = failure_text(exc)
+    result.runtime_s = time.perf_counter() - t0
+    return result.ordered([ref.name for ref in dataset.scenes] + ["bop"])
+
+
+def _wait(future) -> None:
+    import concurrent.futures
+
+    try:
+        future.result(timeout=0.2)
+    except concurrent.futures.TimeoutError:
+        pass

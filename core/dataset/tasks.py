@@ -1,0 +1,86 @@
+"""The per-scene tasks of the dataset commands, run on Dask workers.
+
+Each task opens its scene from a path (with the dataset's shared defaults), does what the single-scene
+command does through the same core function, closes the scene and returns the same JSON document
+(plain values): ``dataset sync`` equals ``evpose sync`` scene by scene because both call
+:func:`evpose.core.align.sync_run.run_sync`.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+from evpose.core.data.json_values import plain
+
+__all__ = ["info_task", "sync_task", "score_task", "review_progress", "triage_task", "TRIAGE_WINDOW_US"]
+
+#: Window length of the triage scores and review progress (the export default).
+TRIAGE_WINDOW_US = 10_000
+
+
+@contextmanager
+def _scene(path: str, defaults):
+    from evpose.core.data.scene import Scene
+
+    scene = Scene.open(path, defaults=defaults)
+    try:
+        yield scene
+    finally:
+        scene.close()
+
+
+def info_task(path: str, defaults) -> dict:
+    """``evpose info SCENE --json``."""
+    from evpose.core.data.scene_summary import scene_info
+
+    with _scene(path, defaults) as scene:
+        return plain(scene_info(scene))
+
+
+def sync_task(path: str, defaults, opts) -> dict:
+    """``evpose sync SCENE --json`` with the options ``opts`` (:class:`~evpose.core.align.sync_run.SyncOptions`)."""
+    from evpose.core.align.sync_run import run_sync
+
+    with _scene(path, defaults) as scene:
+        return plain(run_sync(scene, opts).data)
+
+
+def score_task(path: str, defaults, window_us: int = TRIAGE_WINDOW_US) -> dict:
+    """``evpose score SCENE --json --window-ms window_us/1000``."""
+    from evpose.core.align.score_table import score_windows
+
+    with _scene(path, defaults) as scene:
+        return plain(score_windows(scene, window_us=window_us).to_json())
+
+
+def review_progress(scene, window_us: int = TRIAGE_WINDOW_US) -> dict:
+    """How far the review of ``scene`` is: the windows ``export --only-verified`` would export (every
+    object verified by a mark that is not stale), the windows marked otherwise, and the marks by status."""
+    import numpy as np
+
+    from evpose.core.export.windows import build_windows, review_usage, scene_staleness
+
+    reviews = scene.corrections.reviews
+    windows = build_windows(scene.events, window_us=window_us)
+    keep, touched, _ = review_usage(windows, reviews, scene.object_names, scene_staleness(scene))
+    statuses: dict = {}
+    for m in reviews:
+        statuses[m.status] = statuses.get(m.status, 0) + 1
+    n = len(windows)
+    return {"n_windows": n, "verified_windows": int(np.count_nonzero(keep)),
+            "verified_fraction": float(np.count_nonzero(keep) / n) if n else 0.0,
+            "touched_not_verified": int(np.count_nonzero(touched & ~keep)), "marks": statuses}
+
+
+def triage_task(path: str, defaults, sync_opts, window_us: int = TRIAGE_WINDOW_US) -> dict:
+    """What the triage report needs of one scene: ``info``, ``sync`` (the rate estimate, never applied),
+    ``score`` (per-object summary and per-window scores) and ``review`` (:func:`review_progress`)."""
+    from dataclasses import replace
+
+    from evpose.core.align.score_table import score_windows
+    from evpose.core.align.sync_run import run_sync
+    from evpose.core.data.scene_summary import scene_info
+
+    with _scene(path, defaults) as scene:
+        doc = {"info": scene_info(scene), "sync": run_sync(scene, replace(sync_opts, apply=False)).data,
+               "score": score_windows(scene, window_us=window_us).to_json(), "review": review_progress(scene, window_us)}
+    return plain(doc)

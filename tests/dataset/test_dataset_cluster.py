@@ -1,0 +1,232 @@
+"""The dataset commands on a Dask LocalCluster of 2 workers (issue 13, "Must show"): the same numbers and
+files as the single-scene commands, a worker killed mid-export, an interrupted export resumed, a broken
+scene reported while the others complete, and the same export through an external ``dask scheduler`` +
+``dask worker`` pair."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from evpose.core.data.events import Cancelled
+from evpose.core.dataset.dataset import Dataset
+
+#: Fields that measure time, not results.
+TIMING_KEYS = {"runtime_s", "timings_s", "pool_startup_s", "jobs"}
+#: Fields of a manifest that count one run's work (written now / complete before: a resumed run differs).
+RUN_KEYS = TIMING_KEYS | {"written", "skipped_complete"}
+
+
+def without_timings(doc, keys=TIMING_KEYS):
+    if isinstance(doc, dict):
+        return {k: without_timings(v, keys) for k, v in doc.items() if k not in keys}
+    if isinstance(doc, list):
+        return [without_timings(v, keys) for v in doc]
+    return doc
+
+
+def tree(root: Path, keys=RUN_KEYS) -> dict[str, bytes]:
+    """Every file under ``root`` (but evpose's bookkeeping in .evpose/) with its bytes; JSON manifests
+    without the fields ``keys``."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        rel = str(p.relative_to(root))
+        if p.is_dir() or rel.startswith(".evpose") or "/.evpose" in rel:
+            continue
+        data = p.read_bytes()
+        if p.name == "export_manifest.json":
+            data = json.dumps(without_timings(json.loads(data), keys), sort_keys=True).encode()
+        out[rel] = data
+    return out
+
+
+def single_scene_exports(dataset_root: Path, out: Path, fmt: str) -> None:
+    from evpose.core.export import export_scene
+
+    for ref in Dataset.open(dataset_root).scenes:
+        export_scene(ref.path, fmt, out / ref.name)
+
+
+@pytest.fixture(scope="module")
+def reference_epose(tiny_dataset, tmp_path_factory) -> dict:
+    """The epose export of every scene by the single-scene function, one after the other."""
+    out = tmp_path_factory.mktemp("reference")
+    single_scene_exports(tiny_dataset, out, "epose")
+    return {name: tree(out / name) for name in ("scene_a", "scene_b", "scene_c")}
+
+
+def test_dataset_sync_and_score_equal_the_single_scene_commands(dask_client, tiny_dataset):
+    from evpose.core.align.sync_run import SyncOptions
+    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.dataset.tasks import score_task, sync_task
+
+    ds = Dataset.open(tiny_dataset)
+    sync = map_scenes(dask_client, ds, sync_task, SyncOptions(), label="sync")
+    score = map_scenes(dask_client, ds, score_task, 10_000, label="score")
+    assert sync.failed == {} and score.failed == {}
+    assert list(sync.scenes) == ["scene_a", "scene_b", "scene_c"]
+    for ref in ds.scenes:
+        assert without_timings(sync.scenes[ref.name]) == without_timings(sync_task(str(ref.path), None, SyncOptions()))
+        assert without_timings(score.scenes[ref.name]) == without_timings(score_task(str(ref.path), None, 10_000))
+    # each answer is its own scene's (the scenes have different clocks)
+    offsets = [sync.scenes[n]["offset_us"] for n in ("scene_a", "scene_b", "scene_c")]
+    assert len(set(offsets)) == 3
+
+
+def test_dataset_export_equals_the_single_scene_exports(dask_client, tiny_dataset, reference_epose, tmp_path):
+    from evpose.core.dataset.export import export_dataset
+
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out")
+    assert res.failed == {} and list(res.scenes) == ["scene_a", "scene_b", "scene_c"]
+    for name, ref in reference_epose.items():
+        got = tree(tmp_path / "out" / name)
+        assert got.keys() == ref.keys(), name
+        assert [k for k in got if got[k] != ref[k]] == [], name
+    # a rerun skips what is complete
+    again = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out")
+    assert all(s["written"] == 0 and s["skipped_complete"] > 0 for s in again.scenes.values())
+
+
+def test_bop_export_is_one_dataset(dask_client, tiny_dataset, tmp_path):
+    from evpose.core.dataset.export import export_dataset
+
+    out = tmp_path / "out"
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "bop", out)
+    assert res.failed == {}
+    bop = out / "bop"
+    names = json.loads((bop / "scene_names.json").read_text())
+    assert names["scenes"] == {"000000": "scene_a", "000001": "scene_b", "000002": "scene_c"}
+    for sid, name in names["scenes"].items():
+        for p in (out / name / "000000").rglob("*"):
+            if p.is_file():
+                q = bop / sid / p.relative_to(out / name / "000000")
+                assert q.read_bytes() == p.read_bytes()
+    models = sorted(p.name for p in (bop / "models").iterdir())
+    assert models == sorted(p.name for p in (out / "scene_a" / "models").iterdir())     # each obj_id once
+    info = json.loads((bop / "models" / "models_info.json").read_text())
+    assert sorted(info, key=int) == sorted(str(int(m[4:10])) for m in models if m.endswith(".ply"))
+    # a rerun rebuilds it from the files it listed; a foreign file in bop/ is refused
+    assert export_dataset(dask_client, Dataset.open(tiny_dataset), "bop", out).failed == {}
+    (bop / "mine.txt").write_text("user file")
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "bop", out)
+    assert "mine.txt" in res.failed["bop"] and (bop / "mine.txt").read_text() == "user file"
+
+
+def test_a_killed_worker_gives_the_same_export(dask_client, tiny_dataset, reference_epose, tmp_path):
+    from evpose.core.dataset.export import export_dataset
+
+    pids = list(dask_client.run(os.getpid).values())
+    killed = threading.Event()
+
+    def progress(fraction, _msg=""):
+        if fraction > 0.15 and not killed.is_set():
+            killed.set()
+            os.kill(pids[0], signal.SIGKILL)        # mid-chunk: Dask reruns its tasks on the other worker
+
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out", progress=progress)
+    assert killed.is_set() and res.failed == {}
+    for name, ref in reference_epose.items():
+        got = tree(tmp_path / "out" / name)
+        assert got.keys() == ref.keys(), name
+        assert [k for k in got if got[k] != ref[k]] == [], name
+    dask_client.wait_for_workers(2, timeout=60)      # the nanny restarts the worker for the next tests
+
+
+def test_an_interrupted_export_resumes(dask_client, tiny_dataset, reference_epose, tmp_path):
+    from evpose.core.dataset.export import export_dataset
+
+    calls = []
+
+    def cancel():
+        calls.append(1)
+        return len(calls) > 6
+
+    with pytest.raises(Cancelled):
+        export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out", cancel=cancel)
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out")
+    assert res.failed == {}
+    assert sum(s["skipped_complete"] for s in res.scenes.values()) > 0            # it resumed
+    for name, ref in reference_epose.items():
+        got = tree(tmp_path / "out" / name)
+        assert got.keys() == ref.keys() and [k for k in got if got[k] != ref[k]] == [], name
+
+
+def test_a_broken_scene_is_reported_and_the_others_complete(dask_client, dataset_copy, tmp_path):
+    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.dataset.export import export_dataset
+    from evpose.core.dataset.tasks import info_task
+
+    events = dataset_copy / "scene_b" / "events.h5"
+    events.write_bytes(events.read_bytes()[:5000])          # truncated
+    ds = Dataset.open(dataset_copy)
+    info = map_scenes(dask_client, ds, info_task, label="info")
+    assert list(info.scenes) == ["scene_a", "scene_c"] and list(info.failed) == ["scene_b"]
+    assert "events.h5" in info.failed["scene_b"] and "\n" not in info.failed["scene_b"]
+    res = export_dataset(dask_client, ds, "epose", tmp_path / "out")
+    assert list(res.failed) == ["scene_b"] and "events.h5" in res.failed["scene_b"]
+    assert all(res.scenes[n]["written"] > 0 for n in ("scene_a", "scene_c"))
+
+
+def _evpose(*args, timeout=600):
+    return subprocess.run([sys.executable, "-m", "evpose", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_cli_json_contract_and_partial_exit_status(dataset_copy, tmp_path):
+    events = dataset_copy / "scene_c" / "events.h5"
+    events.write_bytes(b"not hdf5")
+    r = _evpose("dataset", "info", dataset_copy, "--workers", "1", "--json", "-q")
+    assert r.returncode == 3, r.stderr
+    doc = json.loads(r.stdout)
+    assert set(doc) >= {"scenes", "failed", "runtime_s"} and list(doc["scenes"]) == ["scene_a", "scene_b"]
+    assert "events.h5" in doc["failed"]["scene_c"]
+    assert "scene_c: failed:" in r.stderr and "Traceback" not in r.stderr
+    r = _evpose("dataset", "sync", tmp_path / "missing", "--workers", "1")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing" in r.stderr
+    r = _evpose("dataset", "info", dataset_copy, "--workers", "0")
+    assert r.returncode == 2 and "--workers" in r.stderr and "Traceback" not in r.stderr
+
+
+def _dask_cli() -> str:
+    exe = Path(sys.executable).with_name("dask")
+    if not exe.exists():
+        pytest.skip("the dask command is not installed beside this Python")
+    return str(exe)
+
+
+def test_an_external_scheduler_and_workers_give_the_same_export(tiny_dataset, reference_epose, tmp_path):
+    """``dask scheduler`` + ``dask worker`` started here on 127.0.0.1 (stopped at the end)."""
+    dask = _dask_cli()
+    sched_file = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sched_file)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        procs.append(subprocess.Popen([dask, "worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
+                                       "--nworkers", "2", "--no-dashboard", "--host", "127.0.0.1"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        r = _evpose("dataset", "export", tiny_dataset, "--format", "epose", "--out", tmp_path / "out",
+                    "--scheduler", address, "--json", "-q")
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["failed"] == {}
+        for name, ref in reference_epose.items():
+            got = tree(tmp_path / "out" / name)
+            assert got.keys() == ref.keys() and [k for k in got if got[k] != ref[k]] == [], name
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
