@@ -1,7 +1,7 @@
 """A dataset: many scenes checked, corrected and exported together.
 
 A dataset is a folder. Either its immediate subfolders that hold a ``scene.toml`` are its scenes, in
-name order, or a ``dataset.toml`` in it lists the scenes and may give shared defaults::
+name order (hidden folders, such as the staging folder of an import in progress, are not scenes), or a ``dataset.toml`` in it lists the scenes and may give shared defaults::
 
     format = "evpose-dataset/1"
     name = "E-POSE"                       # optional (default: the folder's name)
@@ -75,7 +75,7 @@ class Dataset:
         if (path / DATASET_FILENAME).is_file():
             return _from_file(path / DATASET_FILENAME)
         scenes = [SceneRef(p.name, p) for p in sorted(path.iterdir(), key=lambda p: p.name)
-                  if p.is_dir() and (p / SCENE_FILENAME).is_file()]
+                  if p.is_dir() and not p.name.startswith(".") and (p / SCENE_FILENAME).is_file()]
         if not scenes:
             raise DatasetError(f"{path}: not a dataset: no {DATASET_FILENAME} and no subfolder holds a {SCENE_FILENAME}")
         return cls(path.resolve(), path.resolve().name, scenes)
