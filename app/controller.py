@@ -129,13 +129,14 @@ class Controller(QtCore.QObject):
         if path:
             self.open_scene(path)
 
-    def open_scene(self, path) -> Session | None:
+    def open_scene(self, path, defaults: dict | None = None) -> Session | None:
+        """Open the scene at ``path`` (``defaults``: its dataset's shared tables) in the window."""
         if not self.maybe_save():
             return None
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", CorrectionsWarning)
-                session = Session.open(path)
+                session = Session.open(path, defaults=defaults)
             self.open_warnings = [str(w.message) for w in caught if issubclass(w.category, CorrectionsWarning)]
             for w in caught:
                 if not issubclass(w.category, CorrectionsWarning):

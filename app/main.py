@@ -74,13 +74,15 @@ def app_icon():
 
 
 def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_after: float | None = None,
-            start_busiest: bool = False) -> int:
+            start_busiest: bool = False, dataset: str | None = None) -> int:
     """Open the main window (on ``scene`` if given) and run the event loop.
 
     With ``screenshot``, the window is rendered to that PNG once the first frame is drawn and at
     least ``quit_after`` seconds (default 3) have passed, then the app quits: this works under
     any X display, including Xvfb. ``start_busiest`` opens at the window with the most events
-    (the demo uses it so the first view shows motion).
+    (the demo uses it so the first view shows motion). ``dataset``: open the dataset view on that folder
+    instead (the main window appears when a scene is opened from it; the screenshot is of the dataset view
+    once every row is read).
     """
     from PySide6 import QtCore, QtWidgets
 
@@ -97,7 +99,17 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     unattended = screenshot is not None or quit_after is not None
     window.modal_dialogs = not unattended
     _install_excepthook(window)
-    window.show()
+    if dataset:
+        from evpose.app.dataset_window import open_dataset
+
+        if open_dataset(window, dataset) is None:
+            if unattended:
+                sys.stderr.write(f"evpose gui: error: {_one_line(window.last_error or dataset)}\n")
+                _shut_down(app, window)
+                return 2
+            window.show()
+    else:
+        window.show()
     if scene:
         session = window.controller.open_scene(scene)
         problem = window.last_error if session is None else (_load_for_unattended(session) if unattended else None)
@@ -118,9 +130,12 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
                 app.exit(2)
                 return
             drawn = window.session is None or (window.frame is not None and window.spacetime_drawn())
+            shown = window.dataset_window if dataset else window
+            if dataset:
+                drawn = shown is not None and shown.rows_loaded()
             if t_start.elapsed() >= wait_s * 1000 and drawn:
                 if screenshot:
-                    path = window.save_screenshot(screenshot)
+                    path = shown.save_screenshot(screenshot)
                     sys.stderr.write(f"evpose gui: screenshot saved to {path}\n")
                 window.close()
                 app.quit()

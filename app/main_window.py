@@ -47,6 +47,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.auto_answer: dict = {}
         self.last_error: str | None = None
         self.last_export = None
+        self.dataset_window = None      # evpose.app.dataset_window.DatasetWindow, once a dataset is opened
         self.frame: FrameData | None = None
         self._shown_serial = {"frame": 0, "spacetime": 0}
         self._submitted_serial = {"frame": 0, "spacetime": 0}
@@ -135,6 +136,10 @@ class MainWindow(QtWidgets.QMainWindow):
             act = QtGui.QAction(text, self)
             act.triggered.connect(slot)
             self.actions_by_name[name] = act
+        self.open_dataset_action = QtGui.QAction("Open &dataset…", self)
+        self.open_dataset_action.triggered.connect(lambda: _dataset_ui().open_dataset_dialog(self))
+        self.back_to_dataset_action = QtGui.QAction("&Back to dataset", self)
+        self.back_to_dataset_action.triggered.connect(lambda: _dataset_ui().show_dataset(self))
         self.representation_group = QtGui.QActionGroup(self)
         self.representation_actions = {}
         for name in REPRESENTATION_NAMES:
@@ -150,6 +155,9 @@ class MainWindow(QtWidgets.QMainWindow):
         m.addAction(a["open"])
         self.recent_menu = m.addMenu("Open &recent")
         self.refresh_recent_menu()
+        m.addAction(self.open_dataset_action)
+        m.addAction(self.back_to_dataset_action)
+        m.aboutToShow.connect(lambda: self.back_to_dataset_action.setEnabled(self.dataset_window is not None))
         m.addAction(a["save"])
         m.addSeparator()
         m.addAction(a["export"])
@@ -446,4 +454,13 @@ class MainWindow(QtWidgets.QMainWindow):
         self.settings.save_window(self)
         self.frame_worker.stop()
         self.spacetime_worker.stop()
+        if self.dataset_window is not None:
+            self.dataset_window.close()
         event.accept()
+
+
+def _dataset_ui():
+    """The dataset view's module (imported when first used)."""
+    from evpose.app import dataset_window
+
+    return dataset_window

@@ -22,14 +22,34 @@ def check_quit_after(args) -> None:
         raise CliError(f"--quit-after: must be a number of seconds in [0, {MAX_QUIT_AFTER_S}], got {q}")
 
 
-def run_gui(scene: str | None, args, start_busiest: bool = False) -> int:
-    """Open the main window on ``scene`` (see :func:`evpose.app.main.run_gui`); exit status of the app."""
+def dataset_path(path: str | None) -> str | None:
+    """``path`` when it is a dataset (a folder without a scene.toml that opens as a dataset, or a
+    dataset.toml), else None."""
+    from evpose.core.data.manifest import SCENE_FILENAME
+    from evpose.core.dataset.dataset import DATASET_FILENAME, Dataset
+    from evpose.core.errors import InputError
+
+    if not path:
+        return None
+    p = Path(path).expanduser()
+    if not (p.name == DATASET_FILENAME and p.is_file()) and not (p.is_dir() and not (p / SCENE_FILENAME).exists()):
+        return None
+    try:
+        Dataset.open(p)
+    except InputError:
+        return None        # not a dataset either: the scene's own error says what is missing
+    return str(p)
+
+
+def run_gui(scene: str | None, args, start_busiest: bool = False, dataset: str | None = None) -> int:
+    """Open the main window on ``scene``, or the dataset view on ``dataset`` (see :func:`evpose.app.main.run_gui`);
+    exit status of the app."""
     try:
         from evpose.app.main import run_gui as run_app
     except ImportError as exc:
         raise CliError(f"the desktop app cannot start: {exc}") from None
     return run_app(scene, screenshot=getattr(args, "screenshot", None), quit_after=getattr(args, "quit_after", None),
-                   start_busiest=start_busiest)
+                   start_busiest=start_busiest, dataset=dataset)
 
 
 @command("demo")
@@ -47,7 +67,8 @@ def cmd_demo(args) -> int:
 @command("gui")
 def cmd_gui(args) -> int:
     check_quit_after(args)
-    return run_gui(args.scene, args)
+    dataset = dataset_path(args.scene)
+    return run_gui(None if dataset else args.scene, args, dataset=dataset)
 
 
 def add_demo_parser(subparsers) -> None:
@@ -64,7 +85,7 @@ def add_demo_parser(subparsers) -> None:
 def add_gui_parser(subparsers) -> None:
     """Register ``gui`` on the ``evpose`` sub-parser set."""
     s = subparsers.add_parser("gui", help="open the desktop app")
-    s.add_argument("scene", nargs="?")
-    s.add_argument("--screenshot", help="save a screenshot of the main window to this PNG")
+    s.add_argument("scene", nargs="?", help="a scene folder (or scene.toml), or a dataset folder (or dataset.toml)")
+    s.add_argument("--screenshot", help="save a screenshot of the main window (the dataset view) to this PNG")
     s.add_argument("--quit-after", type=float, help="quit the app after this many seconds")
     s.set_defaults(func=cmd_gui)

@@ -68,8 +68,9 @@ class Session:
         self.history.changed.connect(self._history_changed)
 
     @classmethod
-    def open(cls, path) -> "Session":
-        return cls(Scene.open(path))
+    def open(cls, path, defaults: dict | None = None) -> "Session":
+        """A session on the scene at ``path``; ``defaults``: a dataset's shared tables (see ``Scene.open``)."""
+        return cls(Scene.open(path, defaults=defaults))
 
     def close(self) -> None:
         self.scene.close()

@@ -1,0 +1,354 @@
+"""The dataset view: a window with the scenes of a dataset in a sortable table (issue 13 point 5).
+
+A separate top-level window beside the main window, not a page of it: the table stays in sight while a
+scene is being checked (side by side, or on a second screen), and the main window keeps its layout, its
+docks and its one-session-per-window model unchanged. Double-clicking a row opens that scene in the main
+window (with the dataset's shared defaults); File -> Back to dataset brings the table forward again.
+
+* Rows are read in a background :class:`~evpose.app.workers.Job` from the scene files, opened locally with
+  the dataset's defaults (:func:`scene_row`: ``evpose info`` facts, the unlabeled share of the 10 ms
+  windows and :func:`~evpose.core.dataset.tasks.review_progress`); the UI never waits for them.
+* A row is read again whenever that scene's ``corrections.json`` changes on disk (a save from the main
+  window, or from any other program): a watcher on the scene folders compares the file's signature.
+* *Score all* and *Sync all (estimate only)* run :func:`~evpose.core.dataset.batch.map_scenes` on a Dask
+  ``LocalCluster`` of N worker processes (:func:`~evpose.core.dataset.cluster.open_client`) in a Job, with a
+  progress bar and Cancel; the results fill the mean-score and clock-estimate columns. Cancel takes effect
+  when the cluster has started or the next scene completes (Dask cancels the tasks not yet done).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from evpose.app.workers import Job
+from evpose.core.data.events import Cancelled
+from evpose.core.dataset.batch import BatchResult, failure_text
+from evpose.core.dataset.dataset import Dataset
+from evpose.core.dataset.tasks import TRIAGE_WINDOW_US
+from evpose.core.errors import InputError
+from evpose.widgets.dataset_table import DatasetTable
+
+__all__ = ["DatasetWindow", "open_dataset", "open_dataset_dialog", "scene_row", "score_values", "show_dataset",
+           "sync_values"]
+
+#: A burst of directory events (an atomic save is a temp file and a rename) is read once, after this pause.
+REFRESH_DEBOUNCE_MS = 200
+
+
+def scene_row(path: str, defaults) -> dict:
+    """The table's values of one scene, read from its files (no Qt: runs on a worker thread).
+
+    Returns
+    -------
+    dict
+        ``n_events``, ``duration_s`` (s), ``n_objects``, ``unlabeled_share`` (fraction of the
+        :data:`~evpose.core.dataset.tasks.TRIAGE_WINDOW_US` windows whose label time has no pose under the
+        clock in effect), ``clock_ms`` / ``prior_ms`` (clock offset in effect / of scene.toml, ms),
+        the :func:`~evpose.core.dataset.tasks.review_progress` fields, ``path``, ``status``.
+    """
+    import numpy as np
+
+    from evpose.core.data.scene import Scene
+    from evpose.core.data.scene_summary import scene_info
+    from evpose.core.dataset.tasks import review_progress
+    from evpose.core.export.windows import build_windows
+
+    scene = Scene.open(path, defaults=defaults)
+    try:
+        info = scene_info(scene)
+        windows = build_windows(scene.events, window_us=TRIAGE_WINDOW_US)
+        t_label_us = np.array([w.t_label_us for w in windows], np.int64)
+        no_pose = sum(r is not None for r in scene.unlabeled_reasons(t_label_us)) if len(windows) else 0
+        review = review_progress(scene, TRIAGE_WINDOW_US)
+    finally:
+        scene.close()
+    clock = info["clock"]
+    return {"path": info["path"], "n_events": info["n_events"], "duration_s": info["duration_s"],
+            "n_objects": len(info["objects"]), "unlabeled_share": no_pose / len(windows) if windows else None,
+            "clock_ms": clock["offset_us"] / 1000.0, "prior_ms": clock["prior_offset_us"] / 1000.0,
+            **review, "status": "ok", "failed": False}
+
+
+def score_values(doc: dict) -> dict:
+    """Table values of one ``evpose score --json`` document: ``mean_score``, the mean over the objects of
+    their mean window score (objects without a scored window left out; None when none scored)."""
+    means = [s["mean_score"] for s in doc["summary"].values() if s["mean_score"] is not None]
+    return {"mean_score": sum(means) / len(means) if means else None}
+
+
+def sync_values(doc: dict) -> dict:
+    """Table values of one ``evpose sync --json`` document: the rate estimate ``estimate_ms`` ± ``estimate_std_ms``
+    (ms; None without an estimate) and whether it is ``estimate_reliable``."""
+    est, std = doc.get("offset_us"), doc.get("offset_std_us")
+    return {"estimate_ms": None if est is None else est / 1000.0,
+            "estimate_std_ms": None if std is None else std / 1000.0, "estimate_reliable": bool(doc.get("reliable"))}
+
+
+def _signature(path: Path):
+    """What tells a changed ``corrections.json`` (None when absent)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size, st.st_ino
+
+
+class _RowSignal(QtCore.QObject):
+    row = QtCore.Signal(str, object, int)      # scene name, values, request serial
+
+
+class DatasetWindow(QtWidgets.QMainWindow):
+    """The table of ``dataset``'s scenes; ``main`` is the :class:`~evpose.app.main_window.MainWindow` that
+    opens a scene when its row is double-clicked."""
+
+    def __init__(self, main, dataset: Dataset):
+        super().__init__(None)
+        self.main = main
+        self.dataset = dataset
+        self.jobs: list[Job] = []
+        self.batch_job: Job | None = None
+        self.last_batch: BatchResult | None = None
+        self._serial = 0
+        self._requested: dict[str, int] = {}
+        self._pending_refresh: set[str] = set()
+        self._by_dir = {str(ref.path): ref for ref in dataset.scenes}
+        self._seen = {ref.name: _signature(ref.path / "corrections.json") for ref in dataset.scenes}
+        self._rows = _RowSignal(self)
+        self._rows.row.connect(self._row_ready)
+        self.setWindowTitle(f"evpose dataset — {dataset.name} ({len(dataset)} scenes)")
+
+        self.table = DatasetTable()
+        self.table.set_scenes([ref.name for ref in dataset.scenes])
+        self.table.sceneActivated.connect(self.open_row)
+        self.setCentralWidget(self.table)
+        self._build_toolbar()
+        self.statusBar().showMessage(f"{dataset.root} — double-click a scene to open it")
+
+        self.watcher = QtCore.QFileSystemWatcher([str(ref.path) for ref in dataset.scenes], self)
+        self.watcher.directoryChanged.connect(self._folder_changed)
+        self._refresh_timer = QtCore.QTimer(self, singleShot=True, interval=REFRESH_DEBOUNCE_MS)
+        self._refresh_timer.timeout.connect(self._refresh_changed)
+        self.resize(1280, min(160 + 30 * len(dataset), 700))
+
+    # ------------------------------------------------------------------ layout
+    def _build_toolbar(self) -> None:
+        bar = self.addToolBar("Dataset")
+        bar.setObjectName("dataset_toolbar")
+        bar.setMovable(False)
+        self.reload_action = bar.addAction("Reload", lambda: self.load_rows())
+        self.reload_action.setToolTip("read every scene's facts and review progress again")
+        bar.addSeparator()
+        self.score_action = bar.addAction("Score all", lambda: self.run_batch("score"))
+        self.score_action.setToolTip("alignment score of every 10 ms window of every scene, on a local Dask cluster")
+        self.sync_action = bar.addAction("Sync all (estimate only)", lambda: self.run_batch("sync"))
+        self.sync_action.setToolTip("event-rate clock estimate of every scene (never applied), on a local Dask cluster")
+        bar.addWidget(QtWidgets.QLabel("  workers "))
+        self.workers_spin = QtWidgets.QSpinBox(minimum=1, maximum=max(os.cpu_count() or 1, 1))
+        self.workers_spin.setValue(min(os.cpu_count() or 1, max(len(self.dataset), 1)))
+        self.workers_spin.setToolTip("worker processes of the local Dask cluster")
+        bar.addWidget(self.workers_spin)
+        bar.addSeparator()
+        self.progress = QtWidgets.QProgressBar(minimum=0, maximum=1000)
+        self.progress.setFixedWidth(260)
+        self.progress.setFormat("")
+        self.progress.setTextVisible(True)
+        bar.addWidget(self.progress)
+        self.cancel_button = QtWidgets.QPushButton("Cancel")
+        self.cancel_button.setEnabled(False)
+        self.cancel_button.clicked.connect(self.cancel_batch)
+        bar.addWidget(self.cancel_button)
+
+    # ------------------------------------------------------------------ rows
+    def load_rows(self, names: list[str] | None = None) -> Job:
+        """Read the rows of ``names`` (default: every scene) in a background Job; each row fills as it arrives."""
+        refs = [self.dataset.scene(n) for n in names] if names is not None else list(self.dataset.scenes)
+        self._serial += 1
+        serial = self._serial
+        for ref in refs:
+            self._requested[ref.name] = serial
+            if names is None:
+                self.table.set_values(ref.name, {"status": "loading…"})
+        defaults = self.dataset.defaults or None
+        emit = self._rows.row.emit
+
+        def work(progress, cancel):
+            for k, ref in enumerate(refs):
+                if cancel():
+                    raise Cancelled("reading the scenes cancelled")
+                try:
+                    values = scene_row(str(ref.path), defaults)
+                except (InputError, OSError) as exc:
+                    values = {"status": failure_text(exc), "failed": True}
+                emit(ref.name, values, serial)
+                progress((k + 1) / len(refs), ref.name)
+            return len(refs)
+
+        return self._start(Job(work))
+
+    def _row_ready(self, name: str, values: dict, serial: int) -> None:
+        if serial < self._requested.get(name, 0):
+            return                          # an older read finished after a newer one was asked for
+        self.table.set_values(name, values)
+
+    def rows_loaded(self) -> bool:
+        """True when no row is still being read."""
+        return not self.jobs and all(self.table.values(n).get("status") not in ("", "loading…")
+                                     for n in self._requested)
+
+    def _folder_changed(self, folder: str) -> None:
+        ref = self._by_dir.get(str(Path(folder)))
+        if ref is None:
+            return
+        sig = _signature(ref.path / "corrections.json")
+        if sig != self._seen.get(ref.name):
+            self._seen[ref.name] = sig
+            self._pending_refresh.add(ref.name)
+            self._refresh_timer.start()
+
+    def _refresh_changed(self) -> None:
+        names, self._pending_refresh = sorted(self._pending_refresh), set()
+        if names:
+            self.statusBar().showMessage(f"{', '.join(names)}: corrections changed on disk, row read again", 5000)
+            self.load_rows(names)
+
+    # ------------------------------------------------------------------ open a scene
+    def open_row(self, name: str):
+        """Open scene ``name`` in the main window (with the dataset's defaults); returns the session or None."""
+        ref = self.dataset.scene(name)
+        self.main.dataset_window = self
+        self.main.show()
+        session = self.main.controller.open_scene(ref.path, defaults=self.dataset.defaults or None)
+        if session is not None:
+            self.main.raise_()
+            self.main.activateWindow()
+        return session
+
+    # ------------------------------------------------------------------ dataset jobs
+    def run_batch(self, kind: str, workers: int | None = None) -> Job | None:
+        """Run ``score`` or ``sync`` (the rate estimate, never applied) over every scene on a local Dask cluster
+        of ``workers`` processes (default: the spin box) in a background Job; None when one already runs."""
+        from evpose.core.align.sync_run import SyncOptions
+        from evpose.core.dataset.cluster import ClusterSpec, open_client
+        from evpose.core.dataset.batch import map_scenes
+        from evpose.core.dataset.tasks import score_task, sync_task
+
+        if self.batch_job is not None:
+            return None
+        spec = ClusterSpec(workers=int(workers or self.workers_spin.value()))
+        fn, args = (score_task, (TRIAGE_WINDOW_US,)) if kind == "score" else (sync_task, (SyncOptions(apply=False),))
+        dataset = self.dataset
+
+        def work(progress, cancel):
+            progress(0.0, f"starting a {spec.describe()}…")
+            with open_client(spec) as client:
+                if cancel():
+                    raise Cancelled(f"{dataset.root}: {kind} cancelled")
+                return map_scenes(client, dataset, fn, *args, label=kind, progress=progress, cancel=cancel)
+
+        job = Job(work)
+        job.signals.progress.connect(self._batch_progress)
+        job.signals.finished.connect(lambda result: self._batch_done(kind, result))
+        job.signals.failed.connect(lambda message, details: self._batch_failed(kind, message, details))
+        self.batch_job = job
+        self._set_busy(True, f"{kind}: starting…")
+        return self._start(job)
+
+    def cancel_batch(self) -> None:
+        if self.batch_job is not None:
+            self.batch_job.cancel()
+            self.cancel_button.setEnabled(False)
+            self.progress.setFormat("cancelling…")
+
+    def _batch_progress(self, fraction: float, message: str) -> None:
+        self.progress.setValue(int(fraction * 1000))
+        if not self.batch_job.cancelled:
+            self.progress.setFormat(message)
+
+    def _batch_done(self, kind: str, result: BatchResult) -> None:
+        self.last_batch = result
+        values = score_values if kind == "score" else sync_values
+        for name, doc in result.scenes.items():
+            self.table.set_values(name, values(doc))
+        for name, error in result.failed.items():
+            self.table.set_values(name, {"status": f"{kind} failed: {error}", "failed": True})
+        self._set_busy(False, "")
+        self.statusBar().showMessage(f"{kind}: {len(result.scenes)} scenes done, {len(result.failed)} failed "
+                                     f"in {result.runtime_s:.1f} s", 20_000)
+
+    def _batch_failed(self, kind: str, message: str, details: str) -> None:
+        self._set_busy(False, "")
+        if message == "cancelled":
+            self.statusBar().showMessage(f"{kind} cancelled", 10_000)
+        else:
+            self.main.controller.error(f"Dataset {kind} failed", message, details)
+            self.statusBar().showMessage(f"{kind} failed: {message}", 20_000)
+
+    def _set_busy(self, busy: bool, text: str) -> None:
+        if not busy:
+            self.batch_job = None
+        for act in (self.score_action, self.sync_action):
+            act.setEnabled(not busy)
+        self.workers_spin.setEnabled(not busy)
+        self.cancel_button.setEnabled(busy)
+        self.progress.setValue(0)
+        self.progress.setFormat(text)
+
+    def _start(self, job: Job) -> Job:
+        self.jobs.append(job)
+
+        def forget(*_):
+            if job in self.jobs:
+                self.jobs.remove(job)
+
+        job.signals.finished.connect(forget)
+        job.signals.failed.connect(forget)
+        return job.start()
+
+    # ------------------------------------------------------------------ screenshots, close
+    def save_screenshot(self, path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        QtWidgets.QApplication.processEvents()
+        if not self.grab().toImage().save(str(path)):
+            raise OSError(f"{path}: could not write the screenshot")
+        return path
+
+    def closeEvent(self, event: QtGui.QCloseEvent) -> None:
+        for job in list(self.jobs):
+            job.cancel()
+        event.accept()
+
+
+def open_dataset(main, path) -> DatasetWindow | None:
+    """Open the dataset at ``path`` in a dataset window beside ``main`` (replacing an open one); errors go to
+    ``main``'s error dialog (None returned)."""
+    try:
+        dataset = Dataset.open(path)
+    except InputError as exc:
+        main.controller.error("Cannot open the dataset", str(exc))
+        return None
+    old = getattr(main, "dataset_window", None)
+    if old is not None:
+        old.close()
+    win = DatasetWindow(main, dataset)
+    win.setWindowIcon(main.windowIcon())
+    main.dataset_window = win
+    win.show()
+    win.load_rows()
+    return win
+
+
+def open_dataset_dialog(main) -> DatasetWindow | None:
+    path = QtWidgets.QFileDialog.getExistingDirectory(main, "Open dataset folder")
+    return open_dataset(main, path) if path else None
+
+
+def show_dataset(main) -> None:
+    """Bring the dataset window of ``main`` forward (File -> Back to dataset)."""
+    win = getattr(main, "dataset_window", None)
+    if win is not None:
+        win.show()
+        win.raise_()
+        win.activateWindow()

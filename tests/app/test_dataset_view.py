@@ -1,0 +1,205 @@
+"""The dataset view (issue 13 point 5): the table of a 3-scene dataset (copies of the tiny scene with different
+clock priors), sorting by a numeric column, double-click opens the scene in the main window, a save updates
+the row, Score all / Sync all on a LocalCluster of 1 worker fill their columns, and Cancel stops a job."""
+from __future__ import annotations
+
+import re
+import shutil
+
+import pytest
+from PySide6 import QtCore
+
+from evpose.core.dataset.dataset import Dataset
+from evpose.core.dataset.tasks import review_progress, score_task
+
+#: scene name -> clock prior (µs) written into its scene.toml; -400 ms moves the first ~120 ms of events before
+#: the trajectory's first pose (it starts 280 ms before the first event).
+PRIORS_US = {"s1": 20_000, "s2": -5_000, "s3": -400_000}
+
+
+@pytest.fixture
+def dataset_dir(tiny_scene_dir, tmp_path):
+    root = tmp_path / "ds"
+    for name, prior_us in PRIORS_US.items():
+        shutil.copytree(tiny_scene_dir, root / name)
+        toml = root / name / "scene.toml"
+        text, n = re.subn(r"\[clock\]\noffset_us = 0\n", f"[clock]\noffset_us = {prior_us}\n", toml.read_text())
+        assert n == 1
+        toml.write_text(text)
+    return root
+
+
+@pytest.fixture
+def dwin(qtbot, window, dataset_dir):
+    from evpose.app.dataset_window import open_dataset
+
+    win = open_dataset(window, dataset_dir)
+    assert win is not None and window.dataset_window is win
+    qtbot.addWidget(win)
+    qtbot.waitUntil(win.rows_loaded, timeout=60_000)
+    yield win
+    win.cancel_batch()
+    qtbot.waitUntil(lambda: not win.jobs, timeout=60_000)
+    win.close()
+
+
+def _scene(dataset_dir, name):
+    from evpose.core.data.scene import Scene
+
+    return Scene.open(dataset_dir / name)
+
+
+def test_table_shows_each_scenes_facts(dwin, dataset_dir):
+    t = dwin.table
+    assert t.shown_names() == ["s1", "s2", "s3"]
+    shares = {}
+    for name, prior_us in PRIORS_US.items():
+        v = t.values(name)
+        scene = _scene(dataset_dir, name)
+        try:
+            assert v["n_events"] == scene.events.n_events
+            assert v["duration_s"] == pytest.approx((scene.events.t_last_us - scene.events.t_first_us) * 1e-6)
+            assert v["n_objects"] == len(scene.object_names) == 3
+            assert v["verified_fraction"] == review_progress(scene)["verified_fraction"] == 0.0
+        finally:
+            scene.close()
+        assert v["clock_ms"] == v["prior_ms"] == prior_us / 1000.0
+        # the unlabeled share is the score command's (same 10 ms windows, same clock)
+        score = score_task(str(dataset_dir / name), None)
+        assert v["unlabeled_share"] == pytest.approx(score["unlabeled"] / score["n_windows"])
+        shares[name] = v["unlabeled_share"]
+        assert v["status"] == "ok"
+    assert shares["s3"] > 0.05 and shares["s1"] == 0.0      # the -400 ms prior leaves windows without a pose
+    # what the user sees: formatted text
+    col = t.column_of("clock_ms")
+    assert t.model().index(t.row_of("s2"), col).data() == "-5.0"
+    assert t.model().index(t.row_of("s3"), t.column_of("unlabeled_share")).data() == f"{100 * shares['s3']:.1f}"
+
+
+def test_sort_by_a_numeric_column(qtbot, dwin):
+    t = dwin.table
+    t.sortByColumn(t.column_of("clock_ms"), QtCore.Qt.AscendingOrder)
+    assert t.shown_names() == ["s3", "s2", "s1"]                  # -400 < -5 < 20 (as text "-400.0" < "-5.0")
+    t.sortByColumn(t.column_of("clock_ms"), QtCore.Qt.DescendingOrder)
+    assert t.shown_names() == ["s1", "s2", "s3"]
+    # an empty cell (no score yet) sorts last in both directions
+    t.set_values("s2", {"mean_score": 0.3})
+    t.set_values("s3", {"mean_score": 0.1})
+    for order, expected in ((QtCore.Qt.AscendingOrder, ["s3", "s2", "s1"]),
+                            (QtCore.Qt.DescendingOrder, ["s2", "s3", "s1"])):
+        t.sortByColumn(t.column_of("mean_score"), order)
+        assert t.shown_names() == expected
+
+
+def _double_click(qtbot, table, name):
+    idx = table.model().index(table.row_of(name), 0)
+    table.scrollTo(idx)
+    pos = table.visualRect(idx).center()
+    qtbot.mouseClick(table.viewport(), QtCore.Qt.LeftButton, pos=pos)    # a real double click: press first
+    qtbot.mouseDClick(table.viewport(), QtCore.Qt.LeftButton, pos=pos)
+
+
+def test_double_click_opens_the_scene_and_a_save_updates_the_row(qtbot, window, dwin, dataset_dir):
+    t = dwin.table
+    t.sortByColumn(t.column_of("clock_ms"), QtCore.Qt.AscendingOrder)     # rows no longer in dataset order
+    _double_click(qtbot, t, "s1")
+    s = window.session
+    assert s is not None and s.scene.root == (dataset_dir / "s1").resolve()
+    assert window.windowTitle().startswith("evpose — ")
+
+    # edit: a clock correction and the whole recording verified, then save
+    t0_us, t1_us = s.time_range
+    s.set_offset_correction_us(7_000)
+    n_windows = t.values("s1")["n_windows"]
+    s.add_review("verified", t0_us, t0_us + 10_000 * n_windows)          # the whole 10 ms grid
+    window.actions_by_name["save"].trigger()
+    assert not s.dirty
+
+    qtbot.waitUntil(lambda: t.values("s1")["clock_ms"] == 27.0, timeout=20_000)
+    qtbot.waitUntil(lambda: t.values("s1")["verified_fraction"] == 1.0, timeout=20_000)
+    assert t.values("s2")["clock_ms"] == -5.0                    # the other rows are left alone
+    # back to the dataset: the window comes forward with the updated row
+    window.back_to_dataset_action.trigger()
+    assert dwin.isVisible()
+    assert t.model().index(t.row_of("s1"), t.column_of("verified_fraction")).data() == "100.0"
+
+
+def test_open_row_uses_the_dataset_defaults(qtbot, window, dataset_dir):
+    """A dataset.toml whose scenes lack [clock] gets its shared clock default in the table and the main window."""
+    from evpose.app.dataset_window import open_dataset
+
+    for name in PRIORS_US:
+        toml = dataset_dir / name / "scene.toml"
+        toml.write_text(re.sub(r"\[clock\]\noffset_us = -?\d+\nskew_ppm = 0.0\n", "", toml.read_text()))
+    (dataset_dir / "dataset.toml").write_text('format = "evpose-dataset/1"\nscenes = ["s1", "s2"]\n'
+                                              "[defaults.clock]\noffset_us = 12000\n")
+    win = open_dataset(window, dataset_dir)
+    qtbot.addWidget(win)
+    qtbot.waitUntil(win.rows_loaded, timeout=60_000)
+    assert win.table.shown_names() == ["s1", "s2"]
+    assert win.table.values("s2")["prior_ms"] == 12.0
+    session = win.open_row("s2")
+    assert session is not None and session.scene.clock.offset_us == 12_000
+    win.close()
+
+
+def test_open_dataset_error_is_one_message(window, tmp_path):
+    from evpose.app.dataset_window import open_dataset
+
+    assert open_dataset(window, tmp_path) is None
+    assert "not a dataset" in window.last_error and str(tmp_path) in window.last_error
+
+
+def test_score_and_sync_all_on_a_local_cluster(qtbot, dwin, dataset_dir):
+    from evpose.app.dataset_window import score_values
+
+    job = dwin.run_batch("score", workers=1)
+    assert job is not None and dwin.run_batch("score", workers=1) is None     # one dataset job at a time
+    assert dwin.cancel_button.isEnabled() and not dwin.score_action.isEnabled()
+    qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=120_000)
+    assert dwin.last_batch is not None and not dwin.last_batch.failed
+    for name in PRIORS_US:
+        expected = score_values(score_task(str(dataset_dir / name), None))["mean_score"]
+        assert dwin.table.values(name)["mean_score"] == pytest.approx(expected, abs=1e-12)
+    assert dwin.table.values("s1")["mean_score"] > dwin.table.values("s3")["mean_score"]
+    assert not dwin.cancel_button.isEnabled() and dwin.score_action.isEnabled()
+
+    dwin.run_batch("sync", workers=1)
+    qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=120_000)
+    for name, prior_us in PRIORS_US.items():
+        v = dwin.table.values(name)
+        doc = dwin.last_batch.scenes[name]
+        assert v["estimate_ms"] == doc["offset_us"] / 1000.0 and v["estimate_reliable"] == doc["reliable"]
+        assert v["clock_ms"] == prior_us / 1000.0                  # estimate only: nothing applied
+    assert not (dataset_dir / "s1" / "corrections.json").exists()
+
+
+def test_cancel_a_dataset_job(qtbot, dwin):
+    dwin.run_batch("score", workers=1)
+    dwin.cancel_button.click()
+    assert dwin.progress.format() == "cancelling…"
+    qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=120_000)
+    assert "cancelled" in dwin.statusBar().currentMessage()
+    assert dwin.last_batch is None
+    assert all(dwin.table.values(n).get("mean_score") is None for n in PRIORS_US)
+    assert dwin.score_action.isEnabled() and not dwin.cancel_button.isEnabled()
+
+
+def test_evpose_gui_on_a_dataset_folder_shows_the_dataset_view(dataset_dir, tmp_path):
+    """``evpose gui DATASET`` (a folder without scene.toml that opens as a dataset) starts on the dataset view."""
+    import os
+    import subprocess
+    import sys
+
+    from PySide6 import QtGui
+
+    if not os.environ.get("DISPLAY"):
+        pytest.skip("needs an X display (Xvfb)")
+    png = tmp_path / "view.png"
+    run = subprocess.run([sys.executable, "-m", "evpose", "gui", str(dataset_dir), "--screenshot", str(png),
+                          "--quit-after", "0"], capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, XDG_CONFIG_HOME=str(tmp_path / "config")))
+    assert run.returncode == 0, run.stderr
+    assert f"screenshot saved to {png}" in run.stderr
+    img = QtGui.QImage(str(png))
+    assert not img.isNull() and img.width() <= 1366 and img.height() <= 768
