@@ -130,7 +130,8 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.watcher.directoryChanged.connect(self._folder_changed)
         self._refresh_timer = QtCore.QTimer(self, singleShot=True, interval=REFRESH_DEBOUNCE_MS)
         self._refresh_timer.timeout.connect(self._refresh_changed)
-        self.resize(1280, min(160 + 30 * len(dataset), 700))
+        row_px = self.table.verticalHeader().defaultSectionSize()
+        self.resize(1300, min(150 + row_px * max(len(dataset), 4), 700))      # fits a 1366x768 screen
 
     # ------------------------------------------------------------------ layout
     def _build_toolbar(self) -> None:

@@ -44,6 +44,15 @@ class Column:
     tip: str
     numeric: bool = True
     uses_row: bool = False          # fmt(value, row values) instead of fmt(value)
+    derive: Callable | None = None  # the value computed from the row's values (instead of row[key])
+
+    def value(self, row: dict):
+        return self.derive(row) if self.derive is not None else row.get(self.key)
+
+
+def _estimate_minus_clock(row: dict):
+    est, clock = row.get("estimate_ms"), row.get("clock_ms")
+    return None if est is None or clock is None else est - clock
 
 
 COLUMNS = (
@@ -62,6 +71,9 @@ COLUMNS = (
            "alignment score averaged over the objects' mean window scores (Score all; 0 = no better than noise)"),
     Column("estimate_ms", "clock estimate (ms)", _estimate,
            "event-rate clock estimate ± its standard error (Sync all, never applied)", uses_row=True),
+    Column("estimate_delta_ms", "estimate − clock (ms)", _fixed(1, sign=True),
+           "clock estimate minus the clock in effect: how far the labels' clock is off, by the event rate",
+           derive=_estimate_minus_clock),
     Column("status", "status", str, "loading, ok, or why the scene failed", numeric=False),
 )
 
@@ -114,7 +126,7 @@ class DatasetTableModel(QtCore.QAbstractTableModel):
             return None
         col = COLUMNS[index.column()]
         row = self._rows[self._names[index.row()]]
-        value = row.get(col.key)
+        value = col.value(row)
         if role == SORT_ROLE:
             return value
         if role == QtCore.Qt.DisplayRole:
@@ -135,7 +147,7 @@ def _foreground(key: str, row: dict):
         return QtGui.QBrush(QtGui.QColor(190, 30, 30))
     if key == "verified_fraction" and row.get("verified_fraction") is not None and row["verified_fraction"] >= 1.0:
         return QtGui.QBrush(QtGui.QColor(20, 130, 50))
-    if key == "estimate_ms" and row.get("estimate_reliable") is False:
+    if key in ("estimate_ms", "estimate_delta_ms") and row.get("estimate_reliable") is False:
         return QtGui.QBrush(QtGui.QColor(150, 150, 150))
     return None
 

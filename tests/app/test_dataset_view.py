@@ -11,6 +11,7 @@ from PySide6 import QtCore
 
 from evpose.core.dataset.dataset import Dataset
 from evpose.core.dataset.tasks import review_progress, score_task
+from evpose.widgets.dataset_table import SORT_ROLE
 
 #: scene name -> clock prior (µs) written into its scene.toml; -400 ms moves the first ~120 ms of events before
 #: the trajectory's first pose (it starts 280 ms before the first event).
@@ -171,6 +172,9 @@ def test_score_and_sync_all_on_a_local_cluster(qtbot, dwin, dataset_dir):
         doc = dwin.last_batch.scenes[name]
         assert v["estimate_ms"] == doc["offset_us"] / 1000.0 and v["estimate_reliable"] == doc["reliable"]
         assert v["clock_ms"] == prior_us / 1000.0                  # estimate only: nothing applied
+        delta = dwin.table.model().index(dwin.table.row_of(name), dwin.table.column_of("estimate_delta_ms"))
+        assert delta.data(SORT_ROLE) == pytest.approx((doc["offset_us"] - prior_us) / 1000.0)
+        assert delta.data() == f"{(doc['offset_us'] - prior_us) / 1000.0:+.1f}"
     assert not (dataset_dir / "s1" / "corrections.json").exists()
 
 
