@@ -7,6 +7,7 @@ script sorts the overview table. Every text from the document is escaped.
 """
 from __future__ import annotations
 
+import math
 from html import escape
 from pathlib import Path
 
@@ -205,7 +206,10 @@ def _objects(r: dict, t: dict) -> tuple[str, str]:
     rows = [(n, s["quantiles"]) for n, s in r["scores"].items()]
     if not rows:
         return "", ""
-    box = svg_plots.box_plot(rows, lo=edges[0], hi=edges[-1], threshold=t["min_median_score"],
+    qs = [q for _, q in rows if q]
+    lo = math.floor(10 * min([edges[0]] + [q["min"] for q in qs]) + 1e-9) / 10      # the axis holds every score
+    hi = math.ceil(10 * max([edges[-1]] + [q["max"] for q in qs]) - 1e-9) / 10
+    box = svg_plots.box_plot(rows, lo=lo, hi=hi, threshold=t["min_median_score"],
                              label=f"{r['name']}: score distribution per object")
     trs = []
     for n, s in r["scores"].items():

@@ -67,8 +67,9 @@ def box_plot(rows, *, lo: float, hi: float, threshold: float | None = None, widt
         return left + (min(max(v, lo), hi) - lo) * sx
 
     body = []
-    for k in range(math.floor(lo * 10), math.ceil(hi * 10) + 1):
-        v = k / 10
+    step = 0.1 if hi - lo <= 1.0 + 1e-9 else 0.2
+    for k in range(math.floor(lo / step + 1e-9), math.ceil(hi / step - 1e-9) + 1):
+        v = round(k * step, 1)
         body.append(_line(x(v), top, x(v), height - 18, "grid"))
         body.append(_text(x(v), height - 5, f"{v:g}", "middle"))
     if threshold is not None:

@@ -114,6 +114,20 @@ def test_report_is_self_contained_and_escaped(doc, tmp_path):
             for s in dom.sections] == [r["name"] for r in doc["scenes"]]
 
 
+def test_box_plot_axis_holds_every_score(doc):
+    d = copy.deepcopy(doc)
+    for r in d["scenes"]:
+        for s in r["scores"].values():
+            s["quantiles"].update(min=max(s["quantiles"]["min"], -0.2), max=min(s["quantiles"]["max"], 0.6))
+    html = render_report(d)                                 # scores within the histogram's range: axis -0.2 to 0.6
+    assert ">0.6</text>" in html and ">0.7</text>" not in html and ">-0.3</text>" not in html
+    q = d["scenes"][0]["scores"]["box"]["quantiles"]
+    q["max"], q["min"] = 0.87, -0.55
+    html = render_report(d)
+    assert ">0.8</text>" in html and ">1</text>" in html and ">-0.6</text>" in html
+    assert html.count(">0.8</text>") == 1                  # only that scene's box plot reaches it
+
+
 def test_report_rewrite_replaces_the_file(doc, tmp_path):
     path = tmp_path / "r.html"
     path.write_text("old")

@@ -266,6 +266,19 @@ def test_loose_unpinned_unreliable_and_skewed_clocks_are_flagged(clean_doc, chan
     assert r["flags"][0]["severity"] >= 1.0
 
 
+def test_low_scores_point_at_a_wrong_clock_but_not_at_a_loose_one(clean_doc):
+    d = degrade(shift_prior(clean_doc, 40_000), "box", 0.35)
+    r = scene_rec(tr.triage(batch({"s": d})), "s")
+    assert [f["kind"] for f in r["flags"]] == ["clock", "object"]
+    assert r["flags"][1]["reason"].endswith(" (the clock is flagged too: check it first)")
+    d["sync"].update(offset_std_us=None, offset_pinned=False)     # the rate does not pin the clock at all
+    r = scene_rec(tr.triage(batch({"s": d})), "s")
+    assert r["clock"]["n_sigma"] is None and r["clock"]["sigma_total_us"] is None
+    assert r["clock"]["delta_effect_us"] == -40_000
+    assert [f["kind"] for f in r["flags"]] == ["clock_uncertain", "object"]
+    assert "check it first" not in r["flags"][1]["reason"]
+
+
 def test_loose_sigma_alone_does_not_make_a_disagreement(clean_doc):
     d = shift_prior(clean_doc, 10_000)
     d["sync"]["offset_std_us"] = 6000.0               # 10 ms at a 6 ms sigma: within 3 sigma, but loose
@@ -294,7 +307,8 @@ def test_worst_windows_skip_thin_evidence(clean_doc):
     thin = next(w for w in d["score"]["windows"] if w["index"] == low_i)
     thin["objects"][name]["n_events_near"] = MIN_EVENTS_NEAR - 1
     s = scene_rec(tr.triage(batch({"s": d})), "s")["scores"][name]
-    assert s["quantiles"]["min"] == -0.9                  # still in the distribution ...
+    assert s["quantiles"]["min"] == -0.9                  # still in the distribution (the first bin holds it) ...
+    assert sum(s["histogram"]["counts"]) == s["n_valid"] and s["histogram"]["counts"][0] >= 1
     assert low_i not in [w["index"] for w in s["worst"]]  # ... but not named among the worst
     evidence = sorted((v, i) for i, v, n in valid_scores(d, name) if n >= MIN_EVENTS_NEAR)
     assert [w["index"] for w in s["worst"]] == [i for _, i in evidence[:WORST_WINDOWS]]
@@ -303,6 +317,20 @@ def test_worst_windows_skip_thin_evidence(clean_doc):
     thin["objects"][name]["n_events_near"] = MIN_EVENTS_NEAR      # at the minimum: it counts
     s = scene_rec(tr.triage(batch({"s": d})), "s")["scores"][name]
     assert s["worst"][0]["index"] == low_i and s["worst"][0]["score"] == -0.9
+
+
+def test_object_flag_follows_the_median_not_the_mean(clean_doc):
+    d = copy.deepcopy(clean_doc)
+    wins = [w for w in d["score"]["windows"] if w["objects"]["box"]["valid"]]
+    for w in wins[: int(0.4 * len(wins))]:             # 40 % of the windows very bad: the mean drops, the median not
+        w["objects"]["box"]["score"] = -0.9
+    r = scene_rec(tr.triage(batch({"s": d})), "s")
+    assert r["scores"]["box"]["mean"] < tr.MIN_MEDIAN_SCORE < r["scores"]["box"]["quantiles"]["p50"]
+    assert r["flags"] == []
+    for w in wins[: int(0.6 * len(wins))]:             # 60 %: the median drops too
+        w["objects"]["box"]["score"] = -0.9
+    r = scene_rec(tr.triage(batch({"s": d})), "s")
+    assert [f["reason"].split(",")[0] for f in r["flags"]] == ["box: median score -0.90"]
 
 
 def test_an_object_without_any_score_is_flagged(clean_doc):
