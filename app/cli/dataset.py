@@ -134,7 +134,7 @@ def cmd_report(args) -> int:
     ds = _open_dataset(args)
     with _cluster(args) as client, Progress("dataset report", not args.quiet) as progress:
         result = map_scenes(client, ds, triage_task, SyncOptions(), label="triage", progress=progress)
-    doc = triage(result.to_json())
+    doc = triage(result.to_json(), order=[ref.name for ref in ds.scenes])
     path = write_report(doc, args.out)
     for name, err in result.failed.items():
         print(f"evpose dataset report: {name}: failed: {err}", file=sys.stderr)

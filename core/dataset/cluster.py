@@ -54,6 +54,23 @@ def _has_dashboard() -> bool:
 
 
 @contextlib.contextmanager
+def _workers_ignore_sigint():
+    """Start worker processes with SIGINT ignored (inherited across exec): Ctrl-C in a terminal reaches the
+    whole process group, and this process, not each worker, answers it by cancelling and closing the cluster."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
 def open_client(spec: ClusterSpec, *, log=None):
     """A ``distributed.Client`` for ``spec``; a local cluster is stopped on exit.
 
@@ -73,8 +90,9 @@ def open_client(spec: ClusterSpec, *, log=None):
     else:
         n = spec.local_workers()
         dashboard = _has_dashboard()
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               memory_limit=spec.memory_limit, silence_logs=logging.CRITICAL)
+        with _workers_ignore_sigint():
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                   memory_limit=spec.memory_limit, silence_logs=logging.CRITICAL)
         client = Client(cluster)
     try:
         if log is not None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 
+from evpose.core.data.events import Cancelled
 from evpose.core.export.pool import WindowExecutor, run_worker_chunk
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
@@ -58,6 +59,17 @@ class DaskWindows(WindowExecutor):
     def __init__(self, client, *, retries: int = 0):
         self.client = client
         self.retries = retries        # besides Dask's own rescheduling of tasks of a lost worker
+        self._lock = threading.Lock()
+        self._pending: set = set()
+        self._stopped = False
+
+    def cancel_all(self) -> None:
+        """Cancel every chunk not yet done (the runs waiting on them end with ``Cancelled``); later
+        runs are refused. Called from another thread on Ctrl-C or a cancel."""
+        with self._lock:
+            self._stopped = True
+            pending = list(self._pending)
+        self.client.cancel(pending)
 
     @property
     def workers(self) -> int:
@@ -66,10 +78,18 @@ class DaskWindows(WindowExecutor):
     def run(self, spec: WorkerSpec, chunks: list[list], key: str):
         from distributed import as_completed
 
-        futures = [self.client.submit(run_chunk, spec, key, chunk, pure=False, retries=self.retries)
-                   for chunk in chunks]
+        with self._lock:
+            if self._stopped:
+                raise Cancelled(f"{spec.out_dir}: export cancelled")
+            futures = [self.client.submit(run_chunk, spec, key, chunk, pure=False, retries=self.retries)
+                       for chunk in chunks]
+            self._pending.update(futures)
         try:
-            for _, result in as_completed(futures, with_results=True):
-                yield result
+            for future in as_completed(futures):
+                if future.cancelled() or self._stopped:
+                    raise Cancelled(f"{spec.out_dir}: export cancelled")
+                yield future.result()
         finally:
             self.client.cancel([f for f in futures if not f.done()])
+            with self._lock:
+                self._pending.difference_update(futures)

@@ -87,7 +87,8 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
         if stop.is_set() or (cancel is not None and cancel()):
             raise Cancelled(f"{out_dir}: dataset export cancelled")
     except BaseException:
-        stop.set()                          # drivers stop at their next chunk and leave resumable folders
+        stop.set()                          # drivers stop and leave resumable folders
+        executor.cancel_all()               # (their chunks are cancelled: none waits for a dead worker)
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)

@@ -230,3 +230,49 @@ def test_an_external_scheduler_and_workers_give_the_same_export(tiny_dataset, re
                 p.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_dataset_sync_apply_saves_what_the_single_scene_command_saves(dataset_copy, tmp_path):
+    import shutil
+
+    single = tmp_path / "single"
+    shutil.copytree(dataset_copy, single)
+    r = _evpose("dataset", "sync", dataset_copy, "--apply", "--workers", "2", "--json", "-q")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    for name in ("scene_a", "scene_b", "scene_c"):
+        one = _evpose("sync", single / name, "--apply", "--json", "-q")
+        assert one.returncode == 0, one.stderr
+        alone = json.loads(one.stdout)
+        assert doc["scenes"][name]["applied"] == alone["applied"]
+        assert without_timings(doc["scenes"][name], TIMING_KEYS | {"saved"}) == without_timings(alone, TIMING_KEYS | {"saved"})
+        mine = json.loads((dataset_copy / name / "corrections.json").read_text())
+        theirs = json.loads((single / name / "corrections.json").read_text())
+        assert mine["clock"] == theirs["clock"] and mine.get("revision") == theirs.get("revision")
+
+
+def test_ctrl_c_stops_the_export_and_its_cluster_and_a_rerun_completes(tiny_dataset, reference_epose, tmp_path):
+    """SIGINT to the whole process group, as a terminal sends it: exit 130 with one line, no process of the
+    group left, no temp file left; the same command then completes with the same files."""
+    out = tmp_path / "out"
+    args = [sys.executable, "-m", "evpose", "dataset", "export", str(tiny_dataset), "--format", "epose",
+            "--out", str(out), "--workers", "2"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not any(out.glob("*/*_data.mat")):
+        time.sleep(0.1)
+    assert any(out.glob("*/*_data.mat")), "the export did not start"
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    time.sleep(1.0)
+    ps = subprocess.run(["ps", "-o", "pid=,stat=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
+    alive = [ln.split()[0] for ln in ps.splitlines() if ln.split() and not ln.split()[1].startswith("Z")]
+    assert alive == [], f"processes of the interrupted run still alive: {alive}"     # (zombies wait for init)
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+    r = _evpose("dataset", "export", tiny_dataset, "--format", "epose", "--out", out, "--workers", "2", "--json", "-q")
+    assert r.returncode == 0, r.stderr
+    for name, ref in reference_epose.items():
+        got = tree(out / name)
+        assert got.keys() == ref.keys() and [k for k in got if got[k] != ref[k]] == [], name
