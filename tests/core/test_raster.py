@@ -7,7 +7,6 @@ there by design).
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -307,9 +306,8 @@ def test_meshes_outside_frustum_are_culled_before_triangle_work(davis):
     assert np.all(res.obj_index == -1)
     assert "vertices" not in r.timings, "culled models must not reach the vertex stage"
     meshes = [posed(box, T) for T in poses]
-    t0 = time.perf_counter()
     res = r.render(meshes)
-    assert np.all(res.obj_index == -1) and time.perf_counter() - t0 < 0.5   # loose: the stage check below is the real one
+    assert np.all(res.obj_index == -1)
     assert "triangle boxes" not in r.timings
     assert not any(m.any() for m in r.full_masks([box] * len(poses), poses))
 

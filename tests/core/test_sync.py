@@ -144,7 +144,6 @@ def test_offset_and_skew_on_ideal_rate(rate20):
         off_err.append(abs(res.offset_us - truth.offset_us))
         skew_err.append(abs(res.skew_ppm - truth.skew_ppm))
         assert 0.5 < res.confidence <= 1.0
-        assert res.runtime_s < 10
         # the curve is for the GUI: lags are total offsets, NaN only where the overlap is too small
         assert res.lags_us.shape == res.correlation.shape
         i_best = int(np.nanargmax(res.correlation))
