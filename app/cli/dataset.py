@@ -166,7 +166,8 @@ def cmd_import(args) -> int:
 
     with _cluster(args) as client, Progress("dataset import", not args.quiet) as progress:
         result = import_dataset(client, args.raw_dir, args.assets, args.out, progress=progress)
-    return _finish(args, result, _table(result, [("status", lambda d: str(d.get("status", "imported")))]))
+    return _finish(args, result, _table(result, [
+        ("bag", lambda d: str(d.get("bag", ""))), ("status", lambda d: "complete (skipped)" if d.get("skipped") else "imported")]))
 
 
 # ------------------------------------------------------------------------------------------------- parser

@@ -275,3 +275,29 @@ def test_rerun_leaves_what_is_not_this_bags_scene_alone(first_run, raw_dir, asse
 def test_cancel_stops_the_run(raw_dir, assets_dir, client, tmp_path):
     with pytest.raises(Cancelled, match="cancelled after"):
         import_dataset(client, raw_dir, assets_dir, tmp_path / "ds", cancel=lambda: True)
+
+
+def test_cli_imports_a_dataset_that_the_dataset_commands_open(raw_dir, assets_dir, tmp_path):
+    """``evpose dataset import epose-bag RAW --assets A --out DS``: exit 3 (two bags failed, named on stderr,
+    no traceback), one JSON document; then ``evpose dataset info DS`` reads the imported scenes."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "ds"
+
+    def evpose(*args):
+        return subprocess.run([sys.executable, "-m", "evpose", *map(str, args)], capture_output=True, text=True,
+                              timeout=600)
+
+    r = evpose("dataset", "import", "epose-bag", raw_dir, "--assets", assets_dir, "--out", out, "--workers", "1",
+               "--json", "-q")
+    assert r.returncode == 3, r.stderr
+    doc = json.loads(r.stdout)
+    assert sorted(doc["scenes"]) == sorted(GOOD.values()) and len(doc["failed"]) == 2
+    assert "Traceback" not in r.stderr and r.stderr.count("failed:") == 2
+    r = evpose("dataset", "info", out, "--workers", "1", "--json", "-q")
+    assert r.returncode == 0, r.stderr
+    info = json.loads(r.stdout)
+    assert list(info["scenes"]) == sorted(GOOD.values()) and info["failed"] == {}
+    assert all(d["n_events"] > 0 for d in info["scenes"].values())
