@@ -138,8 +138,12 @@ def cmd_report(args) -> int:
     path = write_report(doc, args.out)
     for name, err in result.failed.items():
         print(f"evpose dataset report: {name}: failed: {err}", file=sys.stderr)
-    emit(args, doc, f"wrote {path}: {len(result.scenes)} scene(s), {len(result.failed)} failed, "
-                    f"{result.runtime_s:.1f} s")
+    # the dataset contract (scenes by name, failed, runtime_s) around the report's own data
+    data = {"dataset": doc["dataset"], "report": str(path),
+            "scenes": {sc["name"]: sc for sc in doc["scenes"] if sc["status"] == "ok"}, "failed": result.failed,
+            "runtime_s": result.runtime_s, **{k: v for k, v in doc.items() if k not in ("dataset", "scenes", "runtime_s")}}
+    emit(args, data, f"wrote {path}: {len(result.scenes)} scene(s), {len(result.failed)} failed, "
+                     f"{result.runtime_s:.1f} s")
     return EXIT_PARTIAL if result.failed else 0
 
 

@@ -188,6 +188,14 @@ def test_cli_json_contract_and_partial_exit_status(dataset_copy, tmp_path):
     assert set(doc) >= {"scenes", "failed", "runtime_s"} and list(doc["scenes"]) == ["scene_a", "scene_b"]
     assert "events.h5" in doc["failed"]["scene_c"]
     assert "scene_c: failed:" in r.stderr and "Traceback" not in r.stderr
+    report = tmp_path / "report.html"
+    r = _evpose("dataset", "report", dataset_copy, "--out", report, "--workers", "2", "--json", "-q")
+    assert r.returncode == 3, r.stderr
+    doc = json.loads(r.stdout)
+    assert list(doc["scenes"]) == ["scene_a", "scene_b"] and list(doc["failed"]) == ["scene_c"]
+    assert doc["runtime_s"] > 0 and doc["report"] == str(report) and doc["ranked"][0]["scene"] == "scene_c"
+    html = report.read_text()
+    assert "scene_a" in html and "scene_c" in html and "events.h5" in html
     r = _evpose("dataset", "sync", tmp_path / "missing", "--workers", "1")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing" in r.stderr
     r = _evpose("dataset", "info", dataset_copy, "--workers", "0")
