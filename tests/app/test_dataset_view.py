@@ -15,7 +15,7 @@ from evpose.widgets.dataset_table import SORT_ROLE
 
 #: scene name -> clock prior (µs) written into its scene.toml; -400 ms moves the first ~120 ms of events before
 #: the trajectory's first pose (it starts 280 ms before the first event).
-PRIORS_US = {"s1": 20_000, "s2": -5_000, "s3": -400_000}
+PRIORS_US = {"s1": 20_000, "s2": 5_000, "s3": -400_000}
 
 
 @pytest.fixture
@@ -73,14 +73,14 @@ def test_table_shows_each_scenes_facts(dwin, dataset_dir):
     assert shares["s3"] > 0.05 and shares["s1"] == 0.0      # the -400 ms prior leaves windows without a pose
     # what the user sees: formatted text
     col = t.column_of("clock_ms")
-    assert t.model().index(t.row_of("s2"), col).data() == "-5.0"
+    assert t.model().index(t.row_of("s2"), col).data() == "+5.0"
     assert t.model().index(t.row_of("s3"), t.column_of("unlabeled_share")).data() == f"{100 * shares['s3']:.1f}"
 
 
 def test_sort_by_a_numeric_column(qtbot, dwin):
     t = dwin.table
     t.sortByColumn(t.column_of("clock_ms"), QtCore.Qt.AscendingOrder)
-    assert t.shown_names() == ["s3", "s2", "s1"]                  # -400 < -5 < 20 (as text "-400.0" < "-5.0")
+    assert t.shown_names() == ["s3", "s2", "s1"]                  # -400 < 5 < 20 (as text "20.0" < "5.0")
     t.sortByColumn(t.column_of("clock_ms"), QtCore.Qt.DescendingOrder)
     assert t.shown_names() == ["s1", "s2", "s3"]
     # an empty cell (no score yet) sorts last in both directions
@@ -118,7 +118,7 @@ def test_double_click_opens_the_scene_and_a_save_updates_the_row(qtbot, window, 
 
     qtbot.waitUntil(lambda: t.values("s1")["clock_ms"] == 27.0, timeout=20_000)
     qtbot.waitUntil(lambda: t.values("s1")["verified_fraction"] == 1.0, timeout=20_000)
-    assert t.values("s2")["clock_ms"] == -5.0                    # the other rows are left alone
+    assert t.values("s2")["clock_ms"] == 5.0                     # the other rows are left alone
     # back to the dataset: the window comes forward with the updated row
     window.back_to_dataset_action.trigger()
     assert dwin.isVisible()
@@ -152,16 +152,15 @@ def test_open_dataset_error_is_one_message(window, tmp_path):
 
 
 def test_score_and_sync_all_on_a_local_cluster(qtbot, dwin, dataset_dir):
-    from evpose.app.dataset_window import score_values
-
     job = dwin.run_batch("score", workers=1)
     assert job is not None and dwin.run_batch("score", workers=1) is None     # one dataset job at a time
     assert dwin.cancel_button.isEnabled() and not dwin.score_action.isEnabled()
     qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=120_000)
     assert dwin.last_batch is not None and not dwin.last_batch.failed
     for name in PRIORS_US:
-        expected = score_values(score_task(str(dataset_dir / name), None))["mean_score"]
-        assert dwin.table.values(name)["mean_score"] == pytest.approx(expected, abs=1e-12)
+        summary = score_task(str(dataset_dir / name), None)["summary"]       # evpose score SCENE --json
+        expected = [summary[o]["mean_score"] for o in ("box", "cylinder", "flatbox")]
+        assert dwin.table.values(name)["mean_score"] == pytest.approx(sum(expected) / 3, abs=1e-12)
     assert dwin.table.values("s1")["mean_score"] > dwin.table.values("s3")["mean_score"]
     assert not dwin.cancel_button.isEnabled() and dwin.score_action.isEnabled()
 
