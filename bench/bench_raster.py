@@ -1,9 +1,12 @@
 """Benchmark: evpose.core.label.raster.Rasterizer against open3d's RaycastingScene on a DAVIS346 frame.
 
-Run ``python bench/bench_raster.py``. For each scene, ~50 frames with slightly varying poses
+Run ``python bench/bench_raster.py`` (``--json``: one JSON document of the headline figures). For each scene, ~50 frames with slightly varying poses
 (after a warm-up) are rendered by
 
-* ``ours``: :class:`evpose.core.label.raster.Rasterizer` (``render_objects``: models and poses);
+* ``ours``: :class:`evpose.core.label.raster.Rasterizer` (``render_objects``: models and poses)
+  with the numba kernels (``backend="numba"``, kernels warmed up first);
+* ``numpy``: the same class with ``backend="numpy"``: the vectorised numpy pipeline that was the
+  whole rasteriser before the kernels (unchanged code), the baseline of ``numpy/ours``;
 * ``o3d cast``: open3d ``cast_rays`` with the BVH already built for the frame's poses (the
   build is not timed: the lower bound of DESIGN section 8, "build it once per pose set");
 * ``o3d build+cast``: the scene rebuilt for each frame's poses, then cast (what a per-frame
@@ -18,9 +21,12 @@ the minimum beside ours and open3d's cast (robust to other processes on a shared
 """
 from __future__ import annotations
 
+import json
 import os
 import platform
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -60,7 +66,8 @@ def centred(model: ObjectModel, rotvec, t):
 TABLE = ObjectModel("table", np.array([[-1.5, 0.12, -1.0], [1.5, 0.12, -1.0], [1.5, 0.12, 2.0], [-1.5, 0.12, 2.0]]),
                     np.array([[0, 1, 2], [0, 2, 3]]))
 BASE_POSES = [([0.3, 0.5, 0.1], [-0.06, 0.0, 0.45]), ([1.2, -0.3, 0.4], [0.06, 0.03, 0.55]),
-              ([-1.3, 0.2, 0.0], [0.0, -0.02, 0.36])]
+              ([-1.3, 0.2, 0.0], [0.0, -0.02, 0.36]), ([0.5, -1.0, 0.7], [-0.09, -0.04, 0.5]),
+              ([2.0, 0.4, -0.5], [0.1, -0.05, 0.6])]
 
 
 def frames(models, rng, n, table=False):
@@ -131,7 +138,7 @@ class Open3D:
         return best_k
 
 
-def run_scene(label, camera, raster, o3d_caster, models, rng, table=False):
+def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, baseline=None):
     """Time one scene. The contenders run in separate passes over the same frames: open3d's
     (TBB) worker threads keep spinning for a while after a call returns and would slow down
     whatever runs right after them on a machine with few cores."""
@@ -150,6 +157,13 @@ def run_scene(label, camera, raster, o3d_caster, models, rng, table=False):
         t_ours.append(time.perf_counter() - t0)
         ours.append(res.obj_index)
     stages = {k: 1e3 * v / N_FRAMES for k, v in raster.timings.items()}
+    t_base, same = [], True
+    for i, meshes in enumerate(seq):                 # the numpy pipeline on the same frames
+        poses = [T for _, _, T in meshes]
+        t0 = time.perf_counter()
+        res = baseline.render_objects(all_models, poses)
+        t_base.append(time.perf_counter() - t0)
+        same &= bool(np.array_equal(res.obj_index, ours[i]))
     time.sleep(0.2)
     # open3d, scene rebuilt per frame (Embree builds the BVH lazily, in the first cast)
     t_build, t_cast, ious = [], [], np.ones((len(seq), n_obj))
@@ -174,51 +188,113 @@ def run_scene(label, camera, raster, o3d_caster, models, rng, table=False):
         t_objf.append(time.perf_counter() - t0)
     time.sleep(0.2)
     n_tri = sum(len(F) for _, F, _ in seq[0])
-    return dict(label=label, tris=n_tri, ours=med(t_ours), ours_min=1e3 * min(t_ours[N_WARM:]), cast=med(t_cast),
+    return dict(label=label, tris=n_tri, ours=med(t_ours), numpy=med(t_base), numpy_min=1e3 * min(t_base[N_WARM:]),
+                same_as_numpy=same, ours_min=1e3 * min(t_ours[N_WARM:]), cast=med(t_cast),
                 cast_min=1e3 * min(t_cast[N_WARM:]), build=med(t_build), objf=med(t_objf),
                 iou=ious[N_WARM:].min(axis=0), stages=stages)
+
+
+FIRST_FRAME = """
+import sys, time, json
+t0 = time.perf_counter()
+sys.path.insert(0, {repo!r})
+from evpose.core.data.camera import CameraModel
+from evpose.core.label.raster import Rasterizer
+sys.path.insert(0, {bench!r})
+from bench_raster import load_models, frames
+camera = CameraModel.from_json({cam!r})
+r = Rasterizer(camera)
+models, _ = load_models(["drill.obj", "cracker_box.obj", "mustard_bottle.stl"])
+meshes = frames(models, __import__("numpy").random.default_rng(0), 1)[0]
+t1 = time.perf_counter()
+warm = r.warm_up() if {warm} else 0.0
+t2 = time.perf_counter()
+r.render_objects(models, [T for _, _, T in meshes])
+t3 = time.perf_counter()
+print(json.dumps(dict(import_setup=t1 - t0, warm_up=warm, first_frame=t3 - t2)))
+"""
+
+
+def first_frame_latency() -> dict:
+    """First-frame time in a fresh process: with an empty numba cache (cold: compiles), with the
+    cache filled (warm: loads), and with the cache filled and warm_up() run before the frame (as
+    the app does in a background thread at start-up)."""
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        cam = str(REPO.parent / "shared/assets/epose/camera_davis346.json")
+        for name, warm in (("cold", False), ("cached", False), ("cached+warm_up", True)):
+            code = FIRST_FRAME.format(repo=str(REPO.parent), bench=str(REPO / "bench"), cam=cam, warm=warm)
+            if not Path(cam).is_file():
+                code = code.replace(f"CameraModel.from_json({cam!r})", "CameraModel.davis346()")
+            res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+            out[name] = json.loads(res.stdout.strip().splitlines()[-1])
+    return out
 
 
 def main() -> None:
     import numpy
 
-    camera = CameraModel.davis346()
+    as_json = "--json" in sys.argv[1:]
+    cam_path = MODELS.parent / "camera_davis346.json"
+    camera = CameraModel.from_json(cam_path) if cam_path.is_file() else CameraModel.davis346()
     t0 = time.perf_counter()
     raster = Rasterizer(camera)
     setup_s = time.perf_counter() - t0
+    warm_s = raster.warm_up()
+    baseline = Rasterizer(camera, backend="numpy")
     o3d_caster = Open3D(camera)
     rng = np.random.default_rng(1)
     big, src = load_models(["nine_hole_peg.stl", "wrench.stl", "mustard_bottle.stl"])
     mid, _ = load_models(["drill.obj", "cracker_box.obj", "mustard_bottle.stl"])
+    five, _ = load_models(["nine_hole_peg.stl", "wrench.stl", "mustard_bottle.stl", "sugar_box.obj", "scissors.stl"])
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    latency = first_frame_latency()
+    rows = [
+        run_scene("3 objects: peg, wrench, mustard", camera, raster, o3d_caster, big, rng, baseline=baseline),
+        run_scene("3 objects: drill, cracker, mustard", camera, raster, o3d_caster, mid, rng, baseline=baseline),
+        run_scene("5 objects: peg...mustard, sugar, scissors", camera, raster, o3d_caster, five, rng,
+                  baseline=baseline),
+        run_scene("1 object: nine_hole_peg", camera, raster, o3d_caster, big[:1], rng, baseline=baseline),
+        run_scene("table plane + 3 objects (peg...)", camera, raster, o3d_caster, big, rng, table=True,
+                  baseline=baseline),
+    ]
+    if as_json:
+        print(json.dumps(dict(
+            camera=f"DAVIS346 {camera.width}x{camera.height} with distortion", meshes=src, frames=N_FRAMES,
+            backend=raster.backend, setup_ms=1e3 * setup_s, warm_up_ms=1e3 * warm_s, first_frame_s=latency,
+            scenes=[dict(scene=r["label"], triangles=r["tris"], ours_ms=r["ours"], numpy_ms=r["numpy"],
+                         o3d_cast_ms=r["cast"], numpy_over_ours=r["numpy"] / r["ours"],
+                         ours_over_o3d_cast=r["ours"] / r["cast"], same_as_numpy=r["same_as_numpy"],
+                         min_iou=[float(x) for x in r["iou"]], stages_ms=r["stages"]) for r in rows]), indent=1))
+        return
     print(f"evpose raster benchmark: DAVIS346 {camera.width}x{camera.height} with distortion, {src}")
     print(f"python {platform.python_version()}, numpy {numpy.__version__}, open3d {o3d_caster.o3d.__version__}, "
           f"{os.cpu_count()} cpus, load average {load:.2f}; Rasterizer setup {setup_s * 1e3:.0f} ms")
     print(f"median over {N_FRAMES} frames (poses jittered ~1 deg / 2 mm per frame) after {N_WARM} warm-up frames\n")
-    rows = [
-        run_scene("3 objects: peg, wrench, mustard", camera, raster, o3d_caster, big, rng),
-        run_scene("3 objects: drill, cracker, mustard", camera, raster, o3d_caster, mid, rng),
-        run_scene("1 object: nine_hole_peg", camera, raster, o3d_caster, big[:1], rng),
-        run_scene("table plane + 3 objects (peg...)", camera, raster, o3d_caster, big, rng, table=True),
-    ]
-    head = (f"{'scene':36s} {'tris':>7s} {'ours':>6s} {'(min)':>6s} {'o3d cast':>8s} {'(min)':>6s} {'o3d build':>9s} "
+    print(f"backend {raster.backend}; kernels warmed up in {warm_s * 1e3:.0f} ms; first frame in a fresh process: "
+          + ", ".join(f"{k} {v['first_frame'] * 1e3:.0f} ms (warm_up {v['warm_up'] * 1e3:.0f} ms)"
+                      for k, v in latency.items()) + "\n")
+    head = (f"{'scene':41s} {'tris':>7s} {'ours':>6s} {'(min)':>6s} {'numpy':>6s} {'numpy/':>6s} {'o3d cast':>8s} {'(min)':>6s} {'o3d build':>9s} "
             f"{'o3d obj':>8s} {'ours/':>6s} {'build+cast/':>11s}  IoU vs open3d per object")
-    sub = (f"{'':36s} {'':>7s} {'ms':>6s} {'ms':>6s} {'ms':>8s} {'ms':>6s} {'+cast ms':>9s} {'frame ms':>8s} "
+    sub = (f"{'':41s} {'':>7s} {'ms':>6s} {'ms':>6s} {'ms':>6s} {'ours':>6s} {'ms':>8s} {'ms':>6s} {'+cast ms':>9s} {'frame ms':>8s} "
            f"{'cast':>6s} {'ours':>11s}  (min over frames)")
     print(head)
     print(sub)
     print("-" * len(head))
     for r in rows:
         iou = " ".join(f"{x:.4f}" for x in r["iou"])
-        print(f"{r['label']:36s} {r['tris']:7d} {r['ours']:6.2f} {r['ours_min']:6.2f} {r['cast']:8.2f} "
-              f"{r['cast_min']:6.2f} {r['build']:9.1f} {r['objf']:8.2f} {r['ours'] / r['cast']:6.2f} {r['build'] / r['ours']:11.1f}  {iou}")
+        print(f"{r['label']:41s} {r['tris']:7d} {r['ours']:6.2f} {r['ours_min']:6.2f} {r['numpy']:6.2f} "
+              f"{r['numpy'] / r['ours']:6.2f} {r['cast']:8.2f} "
+              f"{r['cast_min']:6.2f} {r['build']:9.1f} {r['objf']:8.2f} {r['ours'] / r['cast']:6.2f} "
+              f"{r['build'] / r['ours']:11.1f}  {iou}" + ("" if r["same_as_numpy"] else "  MASKS DIFFER FROM NUMPY"))
     print("\nwhere our time goes (ms per frame, mean):")
     for r in rows:
         st = r["stages"]
         total = sum(st.values())
         top = max(st, key=st.get)
         parts = ", ".join(f"{k} {v:.2f}" for k, v in st.items())
-        print(f"  {r['label']:36s} {parts}  -> dominant: {top} ({100 * st[top] / total:.0f} %)")
+        print(f"  {r['label']:41s} {parts}  -> dominant: {top} ({100 * st[top] / total:.0f} %)")
 
 
 if __name__ == "__main__":
