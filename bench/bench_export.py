@@ -27,23 +27,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-DATA = Path(__file__).resolve().parent / ".data"
-SCENE = DATA / "synth_3obj_2s"
+from synth_scenes import DATA, SCENE, ensure_scene  # bench/ is the script's folder
+
 OUT = DATA / "export_out"
-
-
-def ensure_scene() -> Path:
-    from evpose.core.sim.synth import generate
-    from evpose.core.sim.synth_config import SynthConfig
-
-    if (SCENE / "scene.toml").is_file():
-        return SCENE
-    DATA.mkdir(parents=True, exist_ok=True)
-    print(f"generating {SCENE} (once; about 2 minutes)...", file=sys.stderr)
-    generate(SCENE, SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5,
-                                duration_s=2.0, offset_us=20_000, pose_error_mm=5.0, pose_error_deg=3.0, seed=1),
-             overwrite=True)
-    return SCENE
 
 
 def run(fmt: str, jobs: int, quick: bool, durable) -> dict:

@@ -1,0 +1,60 @@
+"""Synthetic scenes the benchmarks share, generated once into ``bench/.data`` and reused.
+
+- :func:`ensure_scene`: ``synth_3obj_2s``, a 3-object DAVIS346 sequence of built-in shapes (box, cylinder,
+  flatbox; trajectory B at 0.5 m/s, 2 s, seed 1) — the scene of ``bench_export.py``.
+- :func:`ensure_ycb_dataset`: ``dataset_ycb``, a dataset folder of scenes with the real YCB meshes of E-POSE
+  (``../shared/assets/epose/models``): the first 3, 4 and 5 objects of E-POSE's ``five_obj`` scene — the
+  dataset of ``bench_dataset.py``.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+DATA = Path(__file__).resolve().parent / ".data"
+SCENE = DATA / "synth_3obj_2s"
+YCB_DATASET = DATA / "dataset_ycb"
+MODELS = Path(__file__).resolve().parents[2] / "shared/assets/epose/models"
+
+#: E-POSE's ``five_obj`` scene (its objects in its order).
+FIVE_OBJ = ("sugar_box", "drill", "mustard_bottle", "nine_hole_peg", "timer")
+#: Scene name -> YCB objects: the first 3, 4 and 5 of :data:`FIVE_OBJ`. Synth numbers class ids by position,
+#: so nested lists give every object one class id across the dataset (a BOP dataset needs obj_id -> one model).
+YCB_SCENES = {f"{word}_obj": FIVE_OBJ[:n] for word, n in (("three", 3), ("four", 4), ("five", 5))}
+
+
+def ensure_synth(folder: Path, cfg, what: str = "") -> Path:
+    """``folder`` holding the scene :func:`evpose.core.sim.synth.generate` makes from ``cfg``, generated
+    when it has no ``scene.toml`` yet (delete the folder to regenerate)."""
+    from evpose.core.sim.synth import generate
+
+    if (folder / "scene.toml").is_file():
+        return folder
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    print(f"generating {folder} (once{'; ' + what if what else ''})...", file=sys.stderr)
+    generate(folder, cfg, overwrite=True)
+    return folder
+
+
+def ensure_scene() -> Path:
+    """The 3-object built-in-shape scene of ``bench_export.py`` (about 2 minutes to generate)."""
+    from evpose.core.sim.synth_config import SynthConfig
+
+    return ensure_synth(SCENE, SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5,
+                                           duration_s=2.0, offset_us=20_000, pose_error_mm=5.0, pose_error_deg=3.0,
+                                           seed=1), "about 2 minutes")
+
+
+def ensure_ycb_dataset(duration_s: float = 1.5) -> Path:
+    """A dataset folder of the :data:`YCB_SCENES` with the real YCB meshes, ``duration_s`` of events each
+    (trajectory B at 0.5 m/s, the clock prior right, no pose error), one seed per scene. Raises
+    ``FileNotFoundError`` when the E-POSE meshes are absent."""
+    from evpose.core.sim.synth_config import SynthConfig
+
+    if not MODELS.is_dir():
+        raise FileNotFoundError(f"{MODELS}: the E-POSE YCB meshes are needed (see shared/assets/epose/README.md)")
+    root = YCB_DATASET / f"{duration_s:g}s"
+    for seed, (name, objects) in enumerate(YCB_SCENES.items(), 1):
+        ensure_synth(root / name, SynthConfig(objects=objects, mesh_dir=str(MODELS), trajectory="B", speed_mps=0.5,
+                                              duration_s=duration_s, seed=seed), "a minute or two per scene")
+    return root
