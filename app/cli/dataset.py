@@ -7,22 +7,19 @@ cores) and stops it at the end; ``--scheduler ADDR`` uses an existing cluster (`
 
 ``--json`` prints one document: ``scenes`` (name -> the single-scene command's JSON), ``failed``
 (name -> the one-line error) and ``runtime_s``. A failing scene does not stop the others; the exit
-status is then :data:`EXIT_PARTIAL` (3), so scripts notice.
+status is then :data:`evpose.app.cli.errors.EXIT_PARTIAL` (3), so scripts notice.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
-from evpose.app.cli.errors import CliError, command
+from evpose.app.cli.errors import EXIT_PARTIAL, CliError, command
 from evpose.app.cli.export import objects_from_args, window_us_from_args
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 
-__all__ = ["add_dataset_parser", "EXIT_PARTIAL"]
-
-#: Some scenes failed (each named in ``failed`` and on stderr); the others completed.
-EXIT_PARTIAL = 3
+__all__ = ["add_dataset_parser"]
 
 
 def _cluster_args(p: argparse.ArgumentParser) -> None:

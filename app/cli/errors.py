@@ -24,7 +24,7 @@ from typing import Callable
 from evpose.app.cli.json_output import stdout_reserved_for_json
 from evpose.core.errors import InputError
 
-__all__ = ["EXIT_OK", "EXIT_OS_ERROR", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "CliError", "command", "error_line",
+__all__ = ["EXIT_OK", "EXIT_OS_ERROR", "EXIT_BAD_INPUT", "EXIT_PARTIAL", "EXIT_INTERRUPTED", "CliError", "command", "error_line",
            "exit_status"]
 
 EXIT_OK = 0
@@ -32,6 +32,8 @@ EXIT_OK = 0
 EXIT_OS_ERROR = 1
 #: Bad input: a file, a field or an option (also argparse's own status for a bad command line).
 EXIT_BAD_INPUT = 2
+#: A dataset command where some scenes failed (each named in ``failed`` and on stderr); the others completed.
+EXIT_PARTIAL = 3
 #: Interrupted (Ctrl-C, 128 + SIGINT) or cancelled.
 EXIT_INTERRUPTED = 130
 

@@ -12,8 +12,6 @@ import json
 import sys
 from contextvars import ContextVar
 
-from evpose.core.data.json_values import to_jsonable
-
 __all__ = ["emit", "dumps", "stdout_reserved_for_json"]
 
 #: The stream the JSON document goes to while stdout is reserved (None: not reserved).
@@ -22,6 +20,8 @@ _document_stream: ContextVar = ContextVar("evpose_cli_document_stream", default=
 
 def dumps(data) -> str:
     """The document as evpose prints it (indent 1)."""
+    from evpose.core.data.json_values import to_jsonable   # (building the parser loads no engine module)
+
     return json.dumps(data, indent=1, default=to_jsonable)
 
 

@@ -80,8 +80,12 @@ def test_every_command_returns_an_exit_status():
     bad input escape as a traceback)."""
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     names = set(sub.choices)
-    assert names == {"demo", "synth", "info", "gui", "export", "import", "sync", "refine", "score"}
-    for name, parser in sub.choices.items():
+    assert names == {"demo", "synth", "info", "gui", "export", "import", "sync", "refine", "score", "dataset"}
+    parsers = dict(sub.choices)
+    nested = next(a for a in parsers.pop("dataset")._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(nested.choices) == {"info", "import", "sync", "score", "report", "export"}
+    parsers.update({f"dataset {n}": p for n, p in nested.choices.items()})
+    for name, parser in parsers.items():
         func = parser.get_default("func")
         assert getattr(func, "__wrapped__", None) is not None, f"evpose {name}: handler not wrapped by command()"
 
@@ -152,7 +156,7 @@ def test_parser_and_help_load_no_engine_module(tmp_path):
         "import contextlib, io, sys\n"
         "from evpose.app.cli.main import build_parser\n"
         "p = build_parser()\n"
-        "for cmd in ([], ['demo'], ['synth'], ['info'], ['gui'], ['export'], ['import'], ['sync'], ['refine'],"
+        "for cmd in ([], ['demo'], ['synth'], ['info'], ['gui'], ['export'], ['import'], ['sync'], ['refine'], ['dataset'], ['dataset', 'export'],"
         " ['score']):\n"
         "    with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
         "        p.parse_args([*cmd, '--help'])\n"
