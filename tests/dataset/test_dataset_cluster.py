@@ -172,6 +172,12 @@ def test_a_broken_scene_is_reported_and_the_others_complete(dask_client, dataset
     res = export_dataset(dask_client, ds, "epose", tmp_path / "out")
     assert list(res.failed) == ["scene_b"] and "events.h5" in res.failed["scene_b"]
     assert all(res.scenes[n]["written"] > 0 for n in ("scene_a", "scene_c"))
+    # BOP scene ids follow the dataset order, failed scenes included: ids stay stable when one scene fails
+    res = export_dataset(dask_client, ds, "bop", tmp_path / "bop_out")
+    assert list(res.failed) == ["scene_b"]
+    names = json.loads((tmp_path / "bop_out" / "bop" / "scene_names.json").read_text())
+    assert names["scenes"] == {"000000": "scene_a", "000002": "scene_c"} and names["missing"] == ["scene_b"]
+    assert sorted(p.name for p in (tmp_path / "bop_out" / "bop").iterdir() if p.name.startswith("0")) == ["000000", "000002"]
 
 
 def _evpose(*args, timeout=600):
