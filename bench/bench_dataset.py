@@ -448,33 +448,34 @@ def print_notes(p16: dict, p64: dict, run: dict, facts: dict) -> None:
     """The assumptions of the projection and what would limit it (figures of ``run``)."""
     n, noop = run["written"], run["noop"]
     print(f"""
-Assumptions (figures of the '{run['run']}' {run['format']} run above): one single-threaded worker per core,
-doing a window in the measured {run['compute_s'] / n * 1e3:.0f} ms of chunk time ({run['worker_cpu_s'] / n * 1e3:.0f} ms of CPU; 'h (cpu)' assumes
-a core of its own, which this loaded machine did not give), {run['gap_median_s'] * 1e3:.0f} ms between two chunks on a worker
-(median), the first result after {run['first_result_s']:.1f} s, one chunk of tail; the scene drivers (one process,
-serial under the GIL) cost {run['scene_central_cpu_s']:.2f} s CPU per scene (measured: an export that selects no window)
-and {p16['driver_ms_per_window']:.1f} ms per window (the rest of this process's CPU during the export: journal, flush, futures),
-and {run['idle_cpu_rate'] * 100:.1f} % of a core idle (heartbeats, nannies; measured for {IDLE_S:g} s after the export); the scheduler {noop['central_cpu_ms_per_task']:.2f} ms CPU per task and {noop['batch_tasks_per_s']:.0f} tasks/s (no-ops; in the drivers'
-process on one machine, its own process with --scheduler on four); {EPOSE['sequences']} sequences of ~{EPOSE['windows'] // EPOSE['sequences']}
-windows, cut into chunks as the export does (chunk_tasks: ~8 chunks per worker per sequence, 1-32 windows);
-the per-window cost of these 3-5-object YCB scenes; no queueing for nodes (SLURM), no failures.
-'limit' names the longest of the three terms (workers / drivers / scheduler) in hours.
+Assumptions (figures of the '{run['run']}' {run['format']} run above):
+- one single-threaded worker per core, doing a window in the measured {run['compute_s'] / n * 1e3:.0f} ms of chunk time
+  ({run['worker_cpu_s'] / n * 1e3:.0f} ms of CPU: 'h (cpu)' assumes a core of its own, which this loaded machine did not give),
+  {run['gap_median_s'] * 1e3:.0f} ms between two chunks on a worker (median), the first result after {run['first_result_s']:.1f} s, one chunk of tail;
+- the scene drivers (one process, serial under the GIL): {run['scene_central_cpu_s']:.2f} s CPU per scene (measured: an
+  export that selects no window) and {p16['driver_ms_per_window']:.1f} ms per window (the rest of the process's CPU during the
+  export: journal, flush, futures); {run['idle_cpu_rate'] * 100:.1f} % of a core idle (heartbeats, nannies; {IDLE_S:g} s after the export);
+- the scheduler: {noop['central_cpu_ms_per_task']:.2f} ms CPU per task and {noop['batch_tasks_per_s']:.0f} tasks/s (no-ops); in the drivers' process on
+  one machine, its own process (--scheduler) on four;
+- {EPOSE['sequences']} sequences of ~{EPOSE['windows'] // EPOSE['sequences']} windows, cut into chunks as the export does (chunk_tasks: ~8 chunks
+  per worker per sequence, 1-32 windows); the per-window cost of these 3-5-object YCB scenes;
+  no queueing for nodes (SLURM), no failures. 'limit' names the longest of the three terms.
 
 What would limit it:
-- CPU (workers): {p16['terms_h']['workers']:.2f} h on 16 cores, {p64['terms_h']['workers']:.2f} h on 4 x 16; annotation (rasterising the meshes)
-  and image encoding are most of a window (stage columns above).
+- CPU (workers): {p16['terms_h']['workers']:.2f} h on 16 cores, {p64['terms_h']['workers']:.2f} h on 4 x 16; annotation (rasterising the
+  meshes) and image encoding are most of a window (stage columns above).
 - The drivers' process: {p16['terms_h']['drivers']:.2f} h on one machine (with the scheduler's CPU), {p64['terms_h']['drivers']:.2f} h with
   64 workers: one Python process feeds every worker, so it caps the dataset at about
   {EPOSE['windows'] / max(p64['terms_h']['drivers'] * 3600, 1e-9):.0f} windows/s whatever the number of workers.
-- The scheduler: {p64['tasks']} tasks on 64 workers, {p64['scheduler_tasks_per_s']:.0f} tasks/s at the projected speed, against
-  {noop['batch_tasks_per_s']:.0f} no-op tasks/s measured here (round trip one at a time {noop['round_trip_ms']:.1f} ms).
-- HDF5 reads: the event read is {p16['event_read_share'] * 100:.0f} % of a window's chunk time here
-  ({run['stages_s'].get('events', 0.0) / n * 1e3:.1f} ms per window at {facts['events_per_window'] / 1e3:.1f} k events; E-POSE averages
-  {EPOSE['events'] / EPOSE['windows'] / 1e3:.1f} k): {p64['event_read_mb_per_s']:.1f} MB/s of events from the shared filesystem on 64 workers
-  ({facts['event_bytes_per_event']:.1f} bytes per event on disk): not a limit.
+- The scheduler: {p64['tasks']} tasks on 64 workers, {p64['scheduler_tasks_per_s']:.0f} tasks/s at the projected speed:
+  {p64['scheduler_tasks_per_s'] / noop['batch_tasks_per_s'] * 100:.0f} % of the {noop['batch_tasks_per_s']:.0f} no-op tasks/s measured here (one at a time: {noop['round_trip_ms']:.1f} ms round
+  trip); on 16 cores {p16['scheduler_tasks_per_s'] / noop['batch_tasks_per_s'] * 100:.0f} %.
+- HDF5 reads: the event read is {p16['event_read_share'] * 100:.0f} % of a window's chunk time here ({run['stages_s'].get('events', 0.0) / n * 1e3:.1f} ms per
+  window at {facts['events_per_window'] / 1e3:.1f} k events; E-POSE averages {EPOSE['events'] / EPOSE['windows'] / 1e3:.1f} k): {p64['event_read_mb_per_s']:.1f} MB/s of events
+  from the shared filesystem on 64 workers ({facts['event_bytes_per_event']:.1f} bytes per event on disk): not a limit.
 - The shared filesystem's writes: {run['bytes'] / n / 1e3:.0f} kB and {run['files'] / n:.1f} files per window, so on 64 workers
-  {p64['write_mb_per_s']:.0f} MB/s, {p64['files_per_s']:.0f} file creations/s and {p64['syncfs_per_s']:.0f} syncfs/s (one per chunk): the file creation
-  rate and syncfs, not the bandwidth, are what a network filesystem feels first.""")
+  {p64['write_mb_per_s']:.0f} MB/s, {p64['files_per_s']:.0f} file creations/s and {p64['syncfs_per_s']:.0f} syncfs/s (one per chunk): the file
+  creation rate and syncfs, not the bandwidth, are what a network filesystem feels first.""")
 
 
 # ----------------------------------------------------------------------------------------------- main
@@ -505,15 +506,27 @@ def measure(args) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=1.5, help="seconds of events per scene (default 1.5)")
     ap.add_argument("--formats", default="bop,epose")
     ap.add_argument("--workers", default="1,2", help="LocalCluster sizes (default 1,2)")
     ap.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     ap.add_argument("--malloc-compare", action="store_true",
                     help=f"also run the first format without Dask's {DASK_MALLOC_KEY} in the workers (adds ~1 min)")
+    ap.add_argument("--print-json", type=Path, metavar="PATH",
+                    help="measure nothing: print the report of the figures an earlier --json wrote")
     args = ap.parse_args(argv)
-    m = measure(args)
+    m = json.loads(args.print_json.read_text()) if args.print_json else measure(args)
+    rows = report(m)
+    if args.json:
+        doc = {k: v for k, v in m.items() if k != "projection"}
+        doc["projection"] = [{"target": t, "from": src, **p} for t, src, p in rows]
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+    return 0
+
+
+def report(m: dict) -> list:
+    """Print the tables and notes of the measured figures ``m``; returns the projection rows."""
     facts, runs = m["facts"], m["runs"]
     lb, la = m["load_before"], m["load_after"]
     objs = ", ".join(f"{s['name']} {s['objects']}" for s in facts["scenes"])
@@ -531,11 +544,12 @@ def main(argv=None) -> int:
     print_cpu_note(runs, m["cores"])
     print("Per task (a chunk of windows on a worker; Dask task stream) and the stage split per window (ms, summary timings_s)")
     print_tasks(runs)
-    print("s/chunk = median compute time of a chunk; 1st = mean first chunk per worker, s (opens the scene, meshes);"
-          " cold = chunks longer than\n3 x the median (a worker setting up a scene); gap = median time between\ntwo chunks on a worker; ms/win = chunk compute time per window (cpu: the workers'"
-          " CPU); idle s/task = (N x wall - sum of chunk\ntimes) / tasks; wall-Σ/N = export wall - chunk time / N, s;"
-          " central = this process's CPU per window (scene drivers, journal,\nclient, the LocalCluster's scheduler and"
-          " nannies); s/scene = this process's CPU per scene of an export that selects no window\n")
+    print("s/chunk = median compute time of a chunk; 1st = mean first chunk per worker, s (opens the scene, meshes);\n"
+          "cold = chunks longer than 3 x the median (a worker setting up a scene); gap = median time between two chunks\n"
+          "on a worker; ms/win = chunk compute time per window (cpu: the workers' CPU); idle s/task = (N x wall - sum of\n"
+          "chunk times) / tasks; wall-Σ/N = export wall - chunk time / N, s; central = this process's CPU per window\n"
+          "(scene drivers, journal, client, the LocalCluster's scheduler and nannies); s/scene = this process's CPU per\n"
+          "scene of an export that selects no window\n")
     print("Scheduler overhead per task (no-op tasks, client.submit(lambda: None))")
     print_noop(runs)
     print_malloc(runs)
@@ -550,10 +564,7 @@ def main(argv=None) -> int:
     print(f"\nProjection: E-POSE ({EPOSE['sequences']} sequences, {EPOSE['windows'] // 1000} k windows of 10 ms,"
           f" {EPOSE['events'] / 1e9:.1f} G events); the single-scene baseline here: {bases}")
     print_projection(rows, ref, facts)
-    if args.json:
-        doc = {**m, "projection": [{"target": t, "from": src, **p} for t, src, p in rows]}
-        args.json.write_text(json.dumps(doc, indent=1) + "\n")
-    return 0
+    return rows
 
 
 if __name__ == "__main__":
