@@ -19,6 +19,11 @@ __all__ = ["ClusterError", "ClusterSpec", "open_client", "MAX_LOCAL_WORKERS"]
 
 #: A local cluster of more processes than this is refused (a typo, not a plan).
 MAX_LOCAL_WORKERS = 256
+#: Dask sets MALLOC_TRIM_THRESHOLD_=65536 in every worker to hand freed memory back early; for the export's
+#: per-window image buffers that meant ~10x the page faults and about 1.6x slower windows (bench_dataset, one
+#: worker, alternated runs), so local workers keep glibc's default. Workers started by hand: set
+#: DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON__MALLOC_TRIM_THRESHOLD_=None in their environment.
+WORKER_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT_S = 20
 
@@ -77,6 +82,7 @@ def open_client(spec: ClusterSpec, *, log=None):
     ``log(line)`` receives one line saying where the work runs and the dashboard address when there
     is one. Raises :class:`ClusterError` when the options are wrong or the scheduler does not answer.
     """
+    import dask
     from distributed import Client, LocalCluster
 
     cluster, dashboard = None, None
@@ -90,7 +96,7 @@ def open_client(spec: ClusterSpec, *, log=None):
     else:
         n = spec.local_workers()
         dashboard = _has_dashboard()
-        with _workers_ignore_sigint():
+        with _workers_ignore_sigint(), dask.config.set(WORKER_ENVIRON):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    memory_limit=spec.memory_limit, silence_logs=logging.CRITICAL)
         client = Client(cluster)
