@@ -9,7 +9,6 @@ import shutil
 import pytest
 from PySide6 import QtCore
 
-from evpose.core.dataset.dataset import Dataset
 from evpose.core.dataset.tasks import review_progress, score_task
 from evpose.widgets.dataset_table import SORT_ROLE
 
