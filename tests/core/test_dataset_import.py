@@ -64,13 +64,11 @@ def raw_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def client():
-    from distributed import Client, LocalCluster
+    """The cluster the CLI uses (evpose's settings: SIGINT ignored by workers, no MALLOC_TRIM_THRESHOLD_)."""
+    from evpose.core.dataset.cluster import ClusterSpec, open_client
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
-    cl = Client(cluster)
-    yield cl
-    cl.close()
-    cluster.close()
+    with open_client(ClusterSpec(workers=2)) as cl:
+        yield cl
 
 
 @pytest.fixture(scope="module")
