@@ -204,6 +204,8 @@ class AlignController(QtCore.QObject):
         self.last_clock_refine = None
         self.last_refine = None
         self.last_scores = None
+        #: event windows of the clock-from-edges fit (the CLI's ``--windows``; default 24)
+        self.edge_windows = 24
 
     # ------------------------------------------------------------------ plumbing
     def _run(self, title: str, fn, on_done) -> Job | None:
@@ -291,10 +293,14 @@ class AlignController(QtCore.QObject):
         from_sync = (est is not None and clock.offset_us == est.offset_us
                      and abs(clock.skew_ppm - est.skew_ppm) < 1e-6)
 
+        from evpose.core.align.refine_result import RefineParams
+
+        params = RefineParams(n_windows=self.edge_windows)
+
         def fn(scene, progress, cancel):
             if from_sync:
-                return refine_offset_from_sync(scene, sync, progress=progress, cancel=cancel)
-            return refine_offset(scene, progress=progress, cancel=cancel)
+                return refine_offset_from_sync(scene, sync, params=params, progress=progress, cancel=cancel)
+            return refine_offset(scene, params=params, progress=progress, cancel=cancel)
 
         return self._run("Clock from edges", fn, self._clock_done)
 
