@@ -191,7 +191,10 @@ def _run(ctx, selection: _Selection, summary: ExportSummary, jobs: int, progress
 
 
 def _finish(ctx, selection: _Selection, summary: ExportSummary, records: dict, t_start: float, progress) -> None:
-    """Make the last windows durable, write the aggregate files, then the manifest."""
+    """Make the last windows durable, write the aggregate files, then the manifest. Every window is done, so a
+    temporary file left now is a killed worker's (a Dask worker lost mid-chunk, whose chunk ran again
+    elsewhere): removed, so the folder holds exactly the export."""
+    clean_temp_files(ctx.out_dir)
     ctx.writer.flush(ctx)
     ctx.journal.close()
     files, patterns = ctx.writer.finish(ctx, records)

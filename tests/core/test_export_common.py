@@ -307,3 +307,28 @@ def test_concurrent_export_into_same_folder_refused(small_scene, tmp_path):
     finally:
         os.close(fd)
     assert export_scene(small_scene, "h5", out, only_verified=True).written == 12
+
+
+def test_an_executor_whose_worker_died_mid_write_leaves_no_temp_file(small_scene, tmp_path):
+    """A window executor (e.g. Dask) whose worker was killed mid-write leaves that worker's temporary file; the
+    chunk runs again elsewhere and the export completes: the finished folder holds no temporary file."""
+    from evpose.core.export.pool import WindowExecutor, run_worker_chunk
+    from evpose.core.export.worker import WorkerContext
+
+    class DyingFirstWorker(WindowExecutor):
+        def run(self, spec, chunks, key):
+            wctx = WorkerContext(spec)
+            out = Path(spec.out_dir)
+            (out / ".0000_event_image.png.999999-dead.tmp").write_bytes(b"half a png")   # the killed worker's
+            try:
+                for chunk in chunks:
+                    yield run_worker_chunk(wctx, chunk)
+            finally:
+                wctx.scene.close()
+
+    ref, out = tmp_path / "ref", tmp_path / "out"
+    export_scene(small_scene, "epose", ref)
+    export_scene(small_scene, "epose", out, executor=DyingFirstWorker())
+    assert no_temp_files(out)
+    names = sorted(p.name for p in out.iterdir() if p.is_file())
+    assert names == sorted(p.name for p in ref.iterdir() if p.is_file())
