@@ -22,9 +22,9 @@ The dataset (:func:`synth_scenes.ensure_ycb_dataset`, generated once into ``benc
 - **no-op tasks** on the largest cluster of the first format: ``client.submit(lambda: None)`` one at a time (round trip) and
   :data:`NOOP_BATCH` at once (the tasks/s the scheduler and client take), with this process's CPU per
   task (the LocalCluster's scheduler runs in this process);
-- ``--malloc-compare``: the first format again on clusters whose workers do not get Dask's
+- ``--malloc-compare``: the first format again on clusters whose workers get Dask's default
   ``MALLOC_TRIM_THRESHOLD_=65536`` (it makes glibc return every large numpy temporary to the kernel:
-  many more page faults per window).
+  many more page faults per window), which evpose's own clusters leave out.
 
 Then the projection onto E-POSE (306 sequences, 333 k windows, 1.5 G events) on one 16-core machine and on
 four, from those figures; the assumptions and limits are printed with it.
@@ -39,15 +39,15 @@ import resource
 import shutil
 import statistics
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import DATA, ensure_ycb_dataset  # bench/ is the script's folder
+from synth_scenes import ensure_ycb_dataset, run_dir  # bench/ is the script's folder
 
-OUT = DATA / "dataset_out"
 #: No-op tasks submitted at once to measure the scheduler's rate; one at a time for the round trip.
 NOOP_BATCH = 1000
 NOOP_SEQUENTIAL = 200
@@ -139,14 +139,13 @@ def noop_overhead(client) -> dict:
             "batch_ms_per_task": wall / NOOP_BATCH * 1e3, "central_cpu_ms_per_task": cpu / NOOP_BATCH * 1e3}
 
 
-def scene_overhead(client, dataset, fmt: str) -> dict:
+def scene_overhead(client, dataset, fmt: str, work: Path) -> dict:
     """This process's CPU and the wall time per scene of an export that selects no window (``only_verified``
     without review marks): the drivers' per-scene work (open the scene, fingerprint, tile the windows,
     interpolate, set up, write the aggregate files) without any task."""
     from evpose.core.dataset.export import export_dataset
 
-    out = OUT / f"zero_{fmt}"
-    shutil.rmtree(out, ignore_errors=True)
+    out = Path(tempfile.mkdtemp(prefix=f"zero_{fmt}-", dir=work))     # new, in this run's own folder
     c0, t = central_cpu_s(), time.perf_counter()
     result = export_dataset(client, dataset, fmt, out, only_verified=True)
     wall, cpu = time.perf_counter() - t, central_cpu_s() - c0
@@ -168,12 +167,11 @@ def summaries_totals(summaries: list[dict]) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- runs
-def run_baseline(dataset, fmt: str) -> dict:
+def run_baseline(dataset, fmt: str, work: Path) -> dict:
     """``export_scene(..., jobs=1)`` in this process, scene after scene."""
     from evpose.core.export import export_scene
 
-    out = OUT / f"baseline_{fmt}"
-    shutil.rmtree(out, ignore_errors=True)
+    out = work / f"baseline_{fmt}"           # a new folder in this run's own folder
     c0, t = central_cpu_s(), time.perf_counter()
     summaries = [export_scene(ref.path, fmt, out / ref.name, jobs=1).to_json(with_files=False)
                  for ref in dataset.scenes]
@@ -214,34 +212,32 @@ def chunk_figures(stream: list, t_nothing: float, t_export: float) -> dict:
 
 @contextlib.contextmanager
 def malloc_config(malloc: str):
-    """``"dask"``: the workers get Dask's default environment (``MALLOC_TRIM_THRESHOLD_=65536``, what evpose
-    runs today); ``"glibc"``: the same without that variable (glibc's dynamic mmap threshold). A nanny
-    also copies the variable into this process's ``os.environ`` (every later child inherits it), so it
-    is removed from there too while the cluster starts, and put back after."""
-    import dask
-
-    if malloc == "dask":
+    """``"glibc"``: the workers evpose starts (:func:`evpose.core.dataset.cluster.open_client` leaves out Dask's
+    ``MALLOC_TRIM_THRESHOLD_``: glibc's dynamic mmap threshold); ``"dask"``: the same with Dask's default
+    ``MALLOC_TRIM_THRESHOLD_=65536``, put into this process's environment while the cluster starts (the
+    workers inherit it) and restored after."""
+    if malloc == "glibc":
         yield
         return
-    saved = os.environ.pop(DASK_MALLOC_KEY, None)
+    saved = os.environ.get(DASK_MALLOC_KEY)
+    os.environ[DASK_MALLOC_KEY] = "65536"
     try:
-        with dask.config.set({f"distributed.nanny.pre-spawn-environ.{DASK_MALLOC_KEY}": None}):
-            yield
+        yield
     finally:
-        os.environ.pop(DASK_MALLOC_KEY, None)
-        if saved is not None:
+        if saved is None:
+            os.environ.pop(DASK_MALLOC_KEY, None)
+        else:
             os.environ[DASK_MALLOC_KEY] = saved
 
 
-def run_cluster(dataset, fmt: str, n: int, noop: bool, malloc: str = "dask") -> dict:
+def run_cluster(dataset, fmt: str, n: int, work: Path, noop: bool, malloc: str = "glibc") -> dict:
     """``export_dataset`` on a fresh LocalCluster of ``n`` workers (and the no-op tasks when ``noop``)."""
     from distributed import get_task_stream
 
     from evpose.core.dataset.cluster import ClusterSpec, open_client
     from evpose.core.dataset.export import export_dataset
 
-    out = OUT / f"dask{n}_{fmt}"
-    shutil.rmtree(out, ignore_errors=True)
+    out = work / f"dask{n}_{fmt}_{malloc}"   # a new folder in this run's own folder
     t_nothing, t0 = time.time(), time.perf_counter()
     with malloc_config(malloc), open_client(ClusterSpec(workers=n)) as client:
         client.wait_for_workers(n)
@@ -258,7 +254,7 @@ def run_cluster(dataset, fmt: str, n: int, noop: bool, malloc: str = "dask") -> 
         time.sleep(IDLE_S)
         idle_rate = (central_cpu_s() - c1) / IDLE_S
         peak = sampler.stop()
-        per_scene = scene_overhead(client, dataset, fmt)
+        per_scene = scene_overhead(client, dataset, fmt, work)
         overhead = noop_overhead(client) if noop else None
     if result.failed:
         raise RuntimeError(f"dataset export failed: {result.failed}")
@@ -266,7 +262,7 @@ def run_cluster(dataset, fmt: str, n: int, noop: bool, malloc: str = "dask") -> 
     shutil.rmtree(out, ignore_errors=True)
     tot = summaries_totals(list(result.scenes.values()))
     chunks = chunk_figures(ts.data, t_nothing, t_export)
-    label = f"dask {n}, glibc malloc" if malloc == "glibc" else f"dask {n} worker{'s' * (n > 1)}"
+    label = f"dask {n}, Dask's malloc trim" if malloc == "dask" else f"dask {n} worker{'s' * (n > 1)}"
     return {"format": fmt, "run": label, "workers": n, "malloc": malloc, "wall_s": wall,
             "cpu_s": cpu, "idle_cpu_rate": idle_rate, "bytes": size, "files": files, "cluster_start_s": start_s, **tot, **chunks,
             "idle_worker_s": max(0.0, n * wall - chunks["compute_s"]),
@@ -419,8 +415,8 @@ def print_malloc(runs: list[dict]) -> None:
              if g.get("malloc") == "glibc" and (g["format"], g["workers"]) == (r["format"], r["workers"])]
     if not pairs:
         return
-    print(f"\nDask's {DASK_MALLOC_KEY}=65536 in the workers (distributed.nanny.pre-spawn-environ, what evpose runs) against"
-          " glibc's default:")
+    print(f"\nDask's {DASK_MALLOC_KEY}=65536 in the workers (distributed.nanny.pre-spawn-environ) against glibc's"
+          " default (what evpose's workers run since this figure):")
     for r, g in pairs:
         rate_r, rate_g = r["written"] / r["wall_s"], g["written"] / g["wall_s"]
         print(f"  {r['format']} {r['workers']} worker(s): {rate_r:.1f} vs {rate_g:.1f} windows/s ({rate_g / rate_r:.2f}x), "
@@ -490,17 +486,17 @@ def measure(args) -> dict:
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     runs = []
-    for fmt in formats:
-        runs.append(run_baseline(dataset, fmt))
-        print(f"  done {fmt} baseline: {runs[-1]['written'] / runs[-1]['wall_s']:.1f} windows/s", file=sys.stderr)
-        mallocs = ("dask", "glibc") if fmt == formats[0] and args.malloc_compare else ("dask",)
-        for n in workers:          # alternated, so that the machine's load drifts alike over both
-            for malloc in mallocs:
-                noop = fmt == formats[0] and malloc == "dask" and n == max(workers)
-                runs.append(run_cluster(dataset, fmt, n, noop=noop, malloc=malloc))
-                print(f"  done {fmt} {runs[-1]['run']}: {runs[-1]['written'] / runs[-1]['wall_s']:.1f} windows/s",
-                      file=sys.stderr)
-    shutil.rmtree(OUT, ignore_errors=True)
+    with run_dir("dataset_out") as work:      # every export goes into this run's own folder, removed at the end
+        for fmt in formats:
+            runs.append(run_baseline(dataset, fmt, work))
+            print(f"  done {fmt} baseline: {runs[-1]['written'] / runs[-1]['wall_s']:.1f} windows/s", file=sys.stderr)
+            mallocs = ("glibc", "dask") if fmt == formats[0] and args.malloc_compare else ("glibc",)
+            for n in workers:          # alternated, so that the machine's load drifts alike over both
+                for malloc in mallocs:
+                    noop = fmt == formats[0] and malloc == "glibc" and n == max(workers)
+                    runs.append(run_cluster(dataset, fmt, n, work, noop=noop, malloc=malloc))
+                    print(f"  done {fmt} {runs[-1]['run']}: {runs[-1]['written'] / runs[-1]['wall_s']:.1f} "
+                          "windows/s", file=sys.stderr)
     return {"facts": facts, "runs": runs, "load_before": load0, "load_after": os.getloadavg(),
             "bench_s": time.perf_counter() - t0, "cores": os.cpu_count()}
 

@@ -27,18 +27,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import DATA, SCENE, ensure_scene  # bench/ is the script's folder
-
-OUT = DATA / "export_out"
+from synth_scenes import SCENE, ensure_scene, run_dir  # bench/ is the script's folder
 
 
-def run(fmt: str, jobs: int, quick: bool, durable) -> dict:
+def run(fmt: str, jobs: int, quick: bool, durable, work) -> dict:
     from evpose.core.data.scene import Scene
     from evpose.core.document.corrections import ReviewMark
     from evpose.core.export import export_scene
 
-    out = OUT / f"{fmt}_{jobs}"
-    shutil.rmtree(out, ignore_errors=True)
+    out = work / f"{fmt}_{jobs}_{time.perf_counter_ns()}"     # a new folder in this run's own folder
     scene = Scene.open(SCENE)
     scene.corrections.set(("offset_us",), 20_000)
     kw = {}
@@ -83,12 +80,13 @@ def main(argv=None) -> int:
     print(f"numpy {np.__version__}, {os.cpu_count()} cores, load average {load[0]:.1f} {load[1]:.1f}; "
           f"scene {SCENE.name} (DAVIS346, 3 objects, 0.5 m/s), 10 ms windows, durable={args.durable}")
     rows = []
-    for fmt in args.formats.split(","):
-        for jobs in (int(j) for j in args.jobs.split(",")):
-            runs = [run(fmt, jobs, args.quick, args.durable) for _ in range(max(1, args.repeat))]
-            rows.append(max(runs, key=lambda r: r["rate"]))
-            r = rows[-1]
-            print(f"  done {fmt} jobs={jobs}: {r['rate']:.1f} windows/s", file=sys.stderr)
+    with run_dir("export_out") as work:       # every export goes into this run's own folder, removed at the end
+        for fmt in args.formats.split(","):
+            for jobs in (int(j) for j in args.jobs.split(",")):
+                runs = [run(fmt, jobs, args.quick, args.durable, work) for _ in range(max(1, args.repeat))]
+                rows.append(max(runs, key=lambda r: r["rate"]))
+                r = rows[-1]
+                print(f"  done {fmt} jobs={jobs}: {r['rate']:.1f} windows/s", file=sys.stderr)
     hdr = (f"{'format':<7}{'jobs':>5}{'windows':>9}{'wall s':>8}{'start s':>8}{'win/s':>8}{'2j/1j':>7}{'excl.st':>8}{'cpu%':>6}{'w/cpu-s':>8}{'MB':>7}"
            f"{'events':>8}{'annot':>8}{'images':>8}{'mat':>7}{'write':>7}{'excl.ann':>9}")
     print(hdr)

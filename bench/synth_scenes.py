@@ -8,7 +8,10 @@
 """
 from __future__ import annotations
 
+import contextlib
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 DATA = Path(__file__).resolve().parent / ".data"
@@ -21,6 +24,20 @@ FIVE_OBJ = ("sugar_box", "drill", "mustard_bottle", "nine_hole_peg", "timer")
 #: Scene name -> YCB objects: the first 3, 4 and 5 of :data:`FIVE_OBJ`. Synth numbers class ids by position,
 #: so nested lists give every object one class id across the dataset (a BOP dataset needs obj_id -> one model).
 YCB_SCENES = {f"{word}_obj": FIVE_OBJ[:n] for word, n in (("three", 3), ("four", 4), ("five", 5))}
+
+
+@contextlib.contextmanager
+def run_dir(prefix: str):
+    """A folder of this run's own outputs, ``bench/.data/<prefix>-XXXXXXXX``, created empty by this run and
+    removed with everything in it when the run ends (also on errors). Outputs go into new subfolders of it,
+    so a benchmark never deletes a folder it did not create: not an earlier run's, not a concurrent run's,
+    nor anything a user put under ``bench/.data``."""
+    DATA.mkdir(parents=True, exist_ok=True)
+    path = Path(tempfile.mkdtemp(prefix=f"{prefix}-", dir=DATA))
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def ensure_synth(folder: Path, cfg, what: str = "") -> Path:
