@@ -52,15 +52,17 @@ def score_task(path: str, defaults, window_us: int = TRIAGE_WINDOW_US) -> dict:
         return plain(score_windows(scene, window_us=window_us).to_json())
 
 
-def review_progress(scene, window_us: int = TRIAGE_WINDOW_US) -> dict:
+def review_progress(scene, window_us: int = TRIAGE_WINDOW_US, windows=None) -> dict:
     """How far the review of ``scene`` is: the windows ``export --only-verified`` would export (every
-    object verified by a mark that is not stale), the windows marked otherwise, and the marks by status."""
+    object verified by a mark that is not stale), the windows marked otherwise, and the marks by status.
+    ``windows``: the ``window_us`` tiling when the caller has built it already."""
     import numpy as np
 
     from evpose.core.export.windows import build_windows, review_usage, scene_staleness
 
     reviews = scene.corrections.reviews
-    windows = build_windows(scene.events, window_us=window_us)
+    if windows is None:
+        windows = build_windows(scene.events, window_us=window_us)
     keep, touched, _ = review_usage(windows, reviews, scene.object_names, scene_staleness(scene))
     statuses: dict = {}
     for m in reviews:
