@@ -20,8 +20,9 @@ __all__ = ["ClusterError", "ClusterSpec", "open_client", "MAX_LOCAL_WORKERS"]
 #: A local cluster of more processes than this is refused (a typo, not a plan).
 MAX_LOCAL_WORKERS = 256
 #: Dask sets MALLOC_TRIM_THRESHOLD_=65536 in every worker to hand freed memory back early; for the export's
-#: per-window image buffers that meant ~10x the page faults and about 1.6x slower windows (bench_dataset, one
-#: worker, alternated runs), so local workers keep glibc's default. Workers started by hand: set
+#: per-window image buffers that meant ~13x the page faults and 1.24x slower BOP windows on a quiet machine
+#: (bench_dataset --malloc-compare, one worker: 2522 vs 191 faults per window, 22.3 vs 27.7 windows/s),
+#: so local workers keep glibc's default. Workers started by hand: set
 #: DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON__MALLOC_TRIM_THRESHOLD_=None in their environment.
 WORKER_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 #: Seconds to wait for an existing scheduler to answer.

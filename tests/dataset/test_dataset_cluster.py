@@ -293,7 +293,7 @@ def test_ctrl_c_stops_the_export_and_its_cluster_and_a_rerun_completes(tiny_data
 
 
 def test_local_workers_keep_the_default_malloc_trimming(dask_client):
-    """Dask's MALLOC_TRIM_THRESHOLD_=65536 made the export's windows ~1.6x slower (bench_dataset): local workers
+    """Dask's MALLOC_TRIM_THRESHOLD_=65536 made the export's windows 1.24x slower (bench_dataset): local workers
     start without it (and the nanny does not put it into this process's environment either)."""
     assert set(dask_client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_")).values()) == {None}
     assert os.environ.get("MALLOC_TRIM_THRESHOLD_") is None
