@@ -5,6 +5,8 @@
 - :func:`ensure_ycb_dataset`: ``dataset_ycb``, a dataset folder of scenes with the real YCB meshes of E-POSE
   (``../shared/assets/epose/models``): the first 3, 4 and 5 objects of E-POSE's ``five_obj`` scene — the
   dataset of ``bench_dataset.py``.
+- :func:`ensure_ycb_scene`: ``ycb_5obj_5s``, one 5-object, 5 s scene with the real YCB meshes — the realistic
+  scene of the export, scrub, space-time and memory benchmarks.
 """
 from __future__ import annotations
 
@@ -75,3 +77,19 @@ def ensure_ycb_dataset(duration_s: float = 1.5) -> Path:
         ensure_synth(root / name, SynthConfig(objects=objects, mesh_dir=str(MODELS), trajectory="B", speed_mps=0.5,
                                               duration_s=duration_s, seed=seed), "a minute or two per scene")
     return root
+
+
+def ensure_ycb_scene(n_objects: int = 5, duration_s: float = 5.0) -> Path:
+    """The realistic scene of the performance benchmarks (tracker issue 14): the first ``n_objects`` of
+    E-POSE's ``five_obj`` objects with their real YCB meshes, trajectory B at 0.5 m/s, ``duration_s`` of
+    events on the full DAVIS346 sensor (5 objects, 5 s: about 5 M events, 495 windows of 10 ms), a 20 ms
+    clock-offset prior error and 5 mm / 3 deg pose errors as in :func:`ensure_scene`, seed 1. Cached in
+    ``bench/.data/ycb_<n>obj_<d>s``. Raises ``FileNotFoundError`` when the E-POSE meshes are absent."""
+    from evpose.core.sim.synth_config import SynthConfig
+
+    if not MODELS.is_dir():
+        raise FileNotFoundError(f"{MODELS}: the E-POSE YCB meshes are needed (see shared/assets/epose/README.md)")
+    return ensure_synth(DATA / f"ycb_{n_objects}obj_{duration_s:g}s",
+                        SynthConfig(objects=FIVE_OBJ[:n_objects], mesh_dir=str(MODELS), trajectory="B",
+                                    speed_mps=0.5, duration_s=duration_s, offset_us=20_000, pose_error_mm=5.0,
+                                    pose_error_deg=3.0, seed=1), "several minutes")
