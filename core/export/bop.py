@@ -65,9 +65,9 @@ def bop_obj_ids(scene, names) -> dict:
     return {n: j for j, n in enumerate(names, 1)}
 
 
-def polarity_bgr_black(pos: np.ndarray, neg: np.ndarray, percentile: float = 99.0) -> np.ndarray:
-    """``polarity_rgb(pos, neg, background="black", percentile)[..., ::-1]`` (BGR for OpenCV),
-    bit-identical (tested against evpose.core.label.event_frames.display), computed only at pixels with events."""
+def polarity_rgb_black(pos: np.ndarray, neg: np.ndarray, percentile: float = 99.0) -> np.ndarray:
+    """``polarity_rgb(pos, neg, background="black", percentile)``, bit-identical (tested against
+    evpose.core.label.event_frames.display), computed only at pixels with events."""
     H, W = pos.shape
     out = np.zeros((H * W, 3), np.uint8)
     p, n = pos.ravel(), neg.ravel()
@@ -79,7 +79,7 @@ def polarity_bgr_black(pos: np.ndarray, neg: np.ndarray, percentile: float = 99.
     s = float(np.percentile(vals, percentile))
     if not s > 0:
         s = float(vals.max())
-    for ch, a in ((2, pi), (0, ni)):                 # R = ON, B = OFF (BGR order), G = 0
+    for ch, a in ((0, pi), (2, ni)):                 # R = ON, B = OFF, G = 0
         v = np.clip(a / s, 0.0, 1.0)
         v *= 255.0
         np.rint(v, out=v)
@@ -211,7 +211,7 @@ class BopWriter(FormatWriter):
         t0 = time.perf_counter()
         evu = st["und"].apply(ev)
         pos, neg = polarity_counts(evu, W, H)
-        bgr = polarity_bgr_black(pos, neg)
+        rgb = polarity_rgb_black(pos, neg)
         comp = self.png_compression
         blobs = []
         gt, info = [], []
@@ -236,7 +236,7 @@ class BopWriter(FormatWriter):
                          "px_count_visib": int(o.px_count_visib), "visib_fract": float(o.visib_fract)})
             blobs.append((sd / "mask" / f"{w.index:06d}_{g:06d}.png", b_full))
             blobs.append((sd / "mask_visib" / f"{w.index:06d}_{g:06d}.png", b_vis))
-        blobs.append((sd / "rgb" / f"{w.index:06d}.png", encode_png(bgr, compression=comp)))
+        blobs.append((sd / "rgb" / f"{w.index:06d}.png", encode_png(rgb, compression=comp)))
         T_cb = inv_T(task.T_base_cam)
         rec = {"i": w.index, "status": "written", "gt": gt, "info": info,
                "cam": {"cam_K": st["K"], "depth_scale": 1.0, "cam_R_w2c": T_cb[:3, :3].ravel().tolist(),

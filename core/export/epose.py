@@ -61,9 +61,9 @@ from evpose.core.label.labels import Request
 EPOSE_CORNER_ORDER = np.array([3, 1, 2, 0, 7, 5, 6, 4])
 
 
-def three_channel_image(ev, width: int, height: int, t0_us: int, spike: np.ndarray, bgr: bool = False) -> np.ndarray:
-    """``three_channel_rgb(three_channel(ev, width, height, t0_us, t1_us))`` as RGB ``uint8 (H, W, 3)``
-    (BGR with ``bgr``, for OpenCV), bit-identical (tested against evpose.core.label.event_frames), with the float
+def three_channel_image(ev, width: int, height: int, t0_us: int, spike: np.ndarray) -> np.ndarray:
+    """``three_channel_rgb(three_channel(ev, width, height, t0_us, t1_us))`` as RGB ``uint8 (H, W, 3)``,
+    bit-identical (tested against evpose.core.label.event_frames), with the float
     conversions done only at the pixels that have events (``spike`` > 0, flat ``(H*W,)``); the image is
     zero elsewhere. Same arithmetic: channel = float32(value / max) (float64 division), then
     rint(float64(channel) * 255). 0.6 ms instead of 4 ms CPU for a 16 k-event DAVIS346 window.
@@ -88,7 +88,7 @@ def three_channel_image(ev, width: int, height: int, t0_us: int, spike: np.ndarr
             v = (a / float(m)).astype(np.float32).astype(np.float64)
             v *= 255.0
             np.rint(v, out=v)
-            out[idx, 2 - ch if bgr else ch] = v
+            out[idx, ch] = v
     return out.reshape(height, width, 3)
 
 
@@ -208,8 +208,8 @@ class EposeWriter(FormatWriter):
             for j, m in enumerate(masks, 1):
                 blobs.append((f"{stem}_segmented_image_obj{j}.png",
                               encode_png(np.where(m, spike, np.uint8(0)).reshape(H, W), compression=comp)))
-        bgr = three_channel_image(ev, W, H, t0_us, spike, bgr=True)
-        blobs.append((f"{stem}_three_channel_image.png", encode_png(bgr, compression=comp)))
+        rgb = three_channel_image(ev, W, H, t0_us, spike)
+        blobs.append((f"{stem}_three_channel_image.png", encode_png(rgb, compression=comp)))
         return blobs
 
     # ------------------------------------------------------------------ README
@@ -267,7 +267,7 @@ def _mat_fields(wctx, task, ev, objs, keypoints) -> dict:
     k = len(objs)
     kp, centre, box_c = keypoints
     t_ref = st["t_ref"]
-    evm = np.empty((len(ev), 4))
+    evm = np.empty((len(ev), 4), order="F")     # column-major, as the .mat stores it: written without a copy
     evm[:, 0] = ev.x
     evm[:, 1] = ev.y
     np.multiply(ev.t - t_ref, 1e-6, out=evm[:, 2])
