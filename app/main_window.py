@@ -13,7 +13,8 @@ from evpose.app.disk_watch import CorrectionsWatcher
 from evpose.app.settings import Settings
 from evpose.app.undo_bridge import UndoBridge
 from evpose.app.workers import LatestWorker
-from evpose.core.session.frames import FrameComputer, FrameData, SpaceTimeData
+from evpose.core.data.event_cache import EventChunkCache
+from evpose.core.session.frames import EventFrame, FrameComputer, FrameData, SpaceTimeData
 from evpose.core.session.model import Session
 from evpose.core.session.view_state import REPRESENTATION_NAMES
 from evpose.core.signals import Change
@@ -49,8 +50,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.last_export = None
         self.dataset_window = None      # evpose.app.dataset_window.DatasetWindow, once a dataset is opened
         self.frame: FrameData | None = None
-        self._shown_serial = {"frame": 0, "spacetime": 0}
-        self._submitted_serial = {"frame": 0, "spacetime": 0}
+        self._shown_serial = {"frame": 0, "events": 0, "spacetime": 0}
+        self._submitted_serial = {"frame": 0, "events": 0, "spacetime": 0}
         self._docks: list[QtWidgets.QDockWidget] = []
         self._session_connection = None
         self.undo_bridge: UndoBridge | None = None
@@ -60,10 +61,18 @@ class MainWindow(QtWidgets.QMainWindow):
         self.setAcceptDrops(True)
         self.setDockNestingEnabled(True)
 
-        self.frame_worker = LatestWorker(FrameComputer().frame, "frame-worker")
+        # a frame request goes to two workers: the event image (cheap, painted at once) and the overlays
+        # (rasterised labels, the expensive part); both read windows through one byte-bounded cache of
+        # decoded event blocks, which the events worker fills ahead of the motion when idle
+        self.event_cache = EventChunkCache()
+        events_fc = FrameComputer(self.event_cache)
+        self.events_worker = LatestWorker(events_fc.events_stages, "frame-events-worker", idle=events_fc.prefetch)
+        self.events_worker.done.connect(self._events_ready)
+        self.events_worker.failed.connect(self._worker_failed)
+        self.frame_worker = LatestWorker(FrameComputer(self.event_cache).overlay_stages, "frame-worker")
         self.frame_worker.done.connect(self._frame_ready)
         self.frame_worker.failed.connect(self._worker_failed)
-        self.spacetime_worker = LatestWorker(FrameComputer().spacetime, "spacetime-worker")
+        self.spacetime_worker = LatestWorker(FrameComputer(self.event_cache).spacetime_stages, "spacetime-worker")
         self.spacetime_worker.done.connect(self._spacetime_ready)
         self.spacetime_worker.failed.connect(self._worker_failed)
         self._spacetime_timer = QtCore.QTimer(self, singleShot=True, interval=SPACETIME_DEBOUNCE_MS)
@@ -305,8 +314,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.frame = None
         # everything submitted so far belongs to the old session: drop it when it arrives
         floor = max(max(self._shown_serial.values()), max(self._submitted_serial.values()))
-        self._shown_serial = {"frame": floor, "spacetime": floor}
-        self._submitted_serial = {"frame": floor, "spacetime": floor}
+        self._shown_serial = {"frame": floor, "events": floor, "spacetime": floor}
+        self._submitted_serial = {"frame": floor, "events": floor, "spacetime": floor}
+        self.event_cache.clear()
         for dock in self._docks:
             self.docks_menu.removeAction(dock.toggleViewAction())
             self.removeDockWidget(dock)
@@ -335,7 +345,8 @@ class MainWindow(QtWidgets.QMainWindow):
     def request_frame(self) -> None:
         if self.session is not None:
             req = self.session.request()
-            self._submitted_serial["frame"] = req.serial
+            self._submitted_serial["frame"] = self._submitted_serial["events"] = req.serial
+            self.events_worker.submit(req)
             self.frame_worker.submit(req)
 
     def request_spacetime(self) -> None:
@@ -356,12 +367,21 @@ class MainWindow(QtWidgets.QMainWindow):
         if visible and self._spacetime_stale:
             self.request_spacetime()
 
+    def _events_ready(self, part: EventFrame | None, serial: int) -> None:
+        """The event image of a request, painted before its overlays (None: the events on screen are its)."""
+        if self.frame_view is None or serial <= self._shown_serial["events"]:
+            return  # stale
+        self._shown_serial["events"] = serial
+        if part is not None:
+            self.frame_view.set_events(part)
+
     def _frame_ready(self, data: FrameData, serial: int) -> None:
+        """The overlays of a request: shown over the events (dimmed when those are of another window)."""
         if self.frame_view is None or serial <= self._shown_serial["frame"]:
             return  # stale
         self._shown_serial["frame"] = serial
         self.frame = data
-        self.frame_view.set_frame(data)
+        self.frame_view.set_overlays(data)
         if self.objects is not None:
             self.objects.set_scores(data.scores)
 
@@ -372,8 +392,14 @@ class MainWindow(QtWidgets.QMainWindow):
         self.spacetime.set_data(data)
 
     def frame_up_to_date(self) -> bool:
-        """True when the frame view shows the most recently requested state."""
-        return self.frame is not None and self._shown_serial["frame"] >= self._submitted_serial["frame"]
+        """True when the frame view shows the most recently requested state (events and overlays)."""
+        return self.frame is not None and self.events_up_to_date() and \
+            self._shown_serial["frame"] >= self._submitted_serial["frame"]
+
+    def events_up_to_date(self) -> bool:
+        """True when the frame view shows the events of the most recent request (overlays may follow)."""
+        return (self.frame_view is not None and self.frame_view.events is not None
+                and self._shown_serial["events"] >= self._submitted_serial["events"])
 
     def spacetime_drawn(self) -> bool:
         """True once the space-time view shows data for the current view (or is hidden)."""
@@ -452,6 +478,7 @@ class MainWindow(QtWidgets.QMainWindow):
             job.cancel()
         self._teardown_session()
         self.settings.save_window(self)
+        self.events_worker.stop()
         self.frame_worker.stop()
         self.spacetime_worker.stop()
         if self.dataset_window is not None:

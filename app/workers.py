@@ -7,6 +7,7 @@ cancel, for exports and estimations.
 """
 from __future__ import annotations
 
+import inspect
 import threading
 import traceback
 from typing import Any, Callable
@@ -19,17 +20,34 @@ class LatestWorker(QtCore.QObject):
 
     Signals ``done(result, serial)`` and ``failed(message, serial)`` arrive on the GUI thread;
     the receiver drops results whose serial is older than the one it last displayed.
+
+    Staged work: when ``fn(request)`` returns a generator, the worker runs it step by step. Each value
+    it yields that is not None is emitted as ``partial(value, serial)`` (e.g. the event image before
+    the overlays), a yielded None is a checkpoint; the generator's return value is emitted with
+    ``done``. Before every step the worker looks for a newer request: when one waits, the current
+    request is abandoned there (the generator is closed, nothing more is emitted for it, ``abandoned``
+    counts it). Requests replaced while pending are counted in ``replaced``.
+
+    ``idle(should_stop)``, when given, runs on the worker thread after a request when no newer one
+    waits (e.g. prefetching); it must return soon after ``should_stop()`` turns True, which it does as
+    soon as a request is submitted.
     """
 
     done = QtCore.Signal(object, int)
+    partial = QtCore.Signal(object, int)
     failed = QtCore.Signal(str, int)
     _kick = QtCore.Signal()
 
-    def __init__(self, fn: Callable[[Any], Any], name: str = "worker"):
+    def __init__(self, fn: Callable[[Any], Any], name: str = "worker", idle: Callable | None = None):
         super().__init__()
         self._fn = fn
+        self._idle = idle
         self._lock = threading.Lock()
         self._pending = None
+        self._stopping = False
+        #: requests replaced by a newer one before they started / abandoned at a checkpoint
+        self.replaced = 0
+        self.abandoned = 0
         self._thread = QtCore.QThread()
         self._thread.setObjectName(name)
         self.moveToThread(self._thread)
@@ -39,8 +57,14 @@ class LatestWorker(QtCore.QObject):
     def submit(self, request) -> None:
         """Queue ``request`` (must have a ``serial`` attribute), replacing any pending one."""
         with self._lock:
+            if self._pending is not None:
+                self.replaced += 1
             self._pending = request
         self._kick.emit()
+
+    def superseded(self) -> bool:
+        """True when a newer request waits (or the worker is stopping): the current one is stale."""
+        return self._pending is not None or self._stopping
 
     @QtCore.Slot()
     def _run(self) -> None:
@@ -50,16 +74,44 @@ class LatestWorker(QtCore.QObject):
             return
         try:
             result = self._fn(req)
+            if inspect.isgenerator(result):
+                result = self._stages(result, req.serial)
+                if result is _ABANDONED:
+                    self.abandoned += 1
+                    return
         except Exception:  # reported to the GUI, never a silent crash of the thread
             self.failed.emit(traceback.format_exc(limit=6), req.serial)
             return
         self.done.emit(result, req.serial)
+        if self._idle is not None and not self.superseded():
+            try:
+                self._idle(self.superseded)
+            except Exception:  # idle work is optional: report, never kill the thread
+                self.failed.emit(traceback.format_exc(limit=6), req.serial)
+
+    def _stages(self, gen, serial: int):
+        """Run a staged computation; :data:`_ABANDONED` when a newer request arrived at a checkpoint."""
+        try:
+            while True:
+                if self.superseded():
+                    gen.close()
+                    return _ABANDONED
+                part = next(gen)
+                if part is not None:
+                    self.partial.emit(part, serial)
+        except StopIteration as stop:
+            return stop.value
 
     def stop(self) -> None:
         with self._lock:
             self._pending = None
+            self._stopping = True
         self._thread.quit()
         self._thread.wait(5000)
+
+
+#: What :meth:`LatestWorker._stages` returns for a request superseded at a checkpoint.
+_ABANDONED = object()
 
 
 class _JobSignals(QtCore.QObject):

@@ -3,6 +3,13 @@
 Scene coordinates equal OpenCV pixel coordinates: the image item spans ``[-0.5, W - 0.5)`` so
 a pixel centre ``(u, v)`` sits at integer coordinates and overlays computed in core line up
 without offsets. The view is the raw (distorted) sensor image, where the events are.
+
+Events first, overlays when ready: the app shows a window's event image as soon as it is computed
+(:meth:`FrameView.set_events`) and its overlays when the rasteriser is done (:meth:`FrameView.set_overlays`).
+Meanwhile the previous overlays stay on screen, dimmed to :data:`STALE_OVERLAY_OPACITY`, and the info line
+names their time ("overlays of t … s, updating"); the hover readout then gives no object or depth. Dimmed
+overlays rather than none: while scrubbing, the objects stay in sight without flicker, and a dim
+outline that lags the events is read as "updating", not as a misalignment.
 """
 from __future__ import annotations
 
@@ -11,7 +18,7 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.label.overlay import AXIS_COLORS
-from evpose.core.session.frames import FrameData
+from evpose.core.session.frames import EventFrame, FrameData
 from evpose.core.session.model import Session
 from evpose.widgets.labels import Readout
 
@@ -34,6 +41,11 @@ def _segments_to_pairs(segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return flat[:, 0], flat[:, 1]
 
 
+#: Opacity of overlays drawn over the events of another window (the new events are shown first, their
+#: overlays follow when computed; the info line says which time the dimmed overlays belong to).
+STALE_OVERLAY_OPACITY = 0.3
+
+
 class FrameView(QtWidgets.QWidget):
     """Shows :class:`~evpose.core.session.frames.FrameData`; reports hover information.
 
@@ -48,7 +60,8 @@ class FrameView(QtWidgets.QWidget):
     def __init__(self, session: Session, parent=None):
         super().__init__(parent)
         self.session = session
-        self.frame: FrameData | None = None
+        self.frame: FrameData | None = None      # the overlays on screen (labels, masks, contours, ...)
+        self.events: EventFrame | None = None    # the event image on screen
         self._items: dict[str, dict[str, pg.GraphicsObject]] = {}
 
         self.glw = pg.GraphicsLayoutWidget()
@@ -120,9 +133,20 @@ class FrameView(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ data
     def set_frame(self, data: FrameData) -> None:
-        """Display a computed frame (called on the GUI thread)."""
+        """Display a computed frame, events and overlays together (called on the GUI thread)."""
+        self.set_events(EventFrame(data.window, data.n_events, data.image_rgb, data.counts, data.compute_ms))
+        self.set_overlays(data)
+
+    def set_events(self, part: EventFrame) -> None:
+        """Display a window's event image at once (the app's first stage); the overlays on screen stay,
+        dimmed and marked in the info line, until :meth:`set_overlays` brings those of this window."""
+        self.events = part
+        self.image_item.setImage(part.image_rgb, autoLevels=False, levels=(0, 255))
+        self._show_overlay_state()
+
+    def set_overlays(self, data: FrameData) -> None:
+        """Display a window's labels and overlays (the app's second stage; ``data.image_rgb`` is not used)."""
         self.frame = data
-        self.image_item.setImage(data.image_rgb, autoLevels=False, levels=(0, 255))
         if data.mask_rgba is not None:
             self.mask_item.setImage(data.mask_rgba, autoLevels=False, levels=None)
             self.mask_item.setVisible(True)
@@ -151,15 +175,41 @@ class FrameView(QtWidgets.QWidget):
             segs = np.concatenate(axes[k]) if axes[k] else np.zeros((0, 2, 2))
             self.axis_items[k].setData(*_segments_to_pairs(segs))
         self.center_item.setData(centers)
-        w = data.window
-        if not data.labels.valid:
-            self.message.setText(f"no label: {data.labels.reason}")
+        self._show_overlay_state()
+
+    @property
+    def overlays_stale(self) -> bool:
+        """True while the overlays on screen belong to another window than the events on screen."""
+        e, f = self.events, self.frame
+        return e is not None and f is not None and (f.window.t0_us, f.window.t1_us) != (e.window.t0_us, e.window.t1_us)
+
+    def _overlay_items(self) -> list:
+        return [self.mask_item, *self.axis_items, self.center_item,
+                *(it for items in self._items.values() for it in items.values())]
+
+    def _show_overlay_state(self) -> None:
+        """Opacity of the overlays (dimmed while stale), the label message and the info line."""
+        e, f = self.events, self.frame
+        stale = self.overlays_stale
+        opacity = STALE_OVERLAY_OPACITY if stale else 1.0
+        for it in self._overlay_items():
+            it.setOpacity(opacity)
+        if f is not None and not f.labels.valid and not stale:
+            self.message.setText(f"no label: {f.labels.reason}")
         else:
             self.message.setText("")
-        inside = "–" if data.inside_fraction is None else f"{100 * data.inside_fraction:.1f}%"
-        t_rel = (w.t_label_us - self.session.time_range[0]) / 1e6
-        self.info.setText(f"t {t_rel:.4f} s   win {(w.t1_us - w.t0_us) / 1000:g} ms   {data.n_events:,} ev   "
-                          f"on masks {inside}   ({data.compute_ms:.0f} ms)")
+        w = e.window if e is not None else f.window
+        t0 = self.session.time_range[0]
+        n = e.n_events if e is not None else f.n_events
+        if f is None:
+            tail = "overlays: computing"
+        elif stale:
+            tail = f"overlays of t {(f.window.t_label_us - t0) / 1e6:.4f} s, updating"
+        else:
+            tail = "on masks " + ("–" if f.inside_fraction is None else f"{100 * f.inside_fraction:.1f}%")
+        ms = (e.compute_ms if e is not None else 0.0) + (f.compute_ms if f is not None and not stale else 0.0)
+        self.info.setText(f"t {(w.t_label_us - t0) / 1e6:.4f} s   win {(w.t1_us - w.t0_us) / 1000:g} ms   "
+                          f"{n:,} ev   {tail}   ({ms:.0f} ms)")
         self._update_readout()
 
     # ------------------------------------------------------------------ hover
@@ -174,12 +224,12 @@ class FrameView(QtWidgets.QWidget):
 
     def hover_info(self, u: int, v: int) -> dict | None:
         """What is at pixel (u, v) in the current frame (None outside the image)."""
-        f = self.frame
-        if f is None or not (0 <= u < f.counts.shape[1] and 0 <= v < f.counts.shape[0]):
+        e, f = self.events, self.frame
+        if e is None or not (0 <= u < e.counts.shape[1] and 0 <= v < e.counts.shape[0]):
             return None
-        info = {"u": u, "v": v, "events": int(f.counts[v, u]), "object": None, "depth_m": None}
-        lab = f.labels
-        if lab.valid and lab.label_map is not None:
+        info = {"u": u, "v": v, "events": int(e.counts[v, u]), "object": None, "depth_m": None}
+        lab = f.labels if f is not None and not self.overlays_stale else None   # never another window's labels
+        if lab is not None and lab.valid and lab.label_map is not None:
             k = int(lab.label_map[v, u])
             if k >= 0:
                 info["object"] = lab.objects[k].name

@@ -3,12 +3,15 @@
 A request is a snapshot (the scene sharing its data, with its own copy of the corrections, and the
 view state), so the app computes frames in worker threads while the user keeps editing; stale
 results are dropped by their serial. :class:`FrameComputer` caches the rasteriser between calls
-(one instance per worker thread).
+(one instance per worker thread). A frame is computed in two stages that the app runs on two workers:
+the event image (:meth:`FrameComputer.events_stages` -> :class:`EventFrame`, cheap) and the labels,
+overlays and scores (:meth:`FrameComputer.overlay_stages`, the rasterisation), so a view paints the events
+at once and the overlays when they are ready; :meth:`FrameComputer.frame` runs both.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,8 +39,8 @@ class FrameData:
 
     window: Window
     n_events: int
-    image_rgb: np.ndarray                # (H, W, 3) uint8
-    counts: np.ndarray                   # (H, W) int64: events per pixel (hover readout)
+    image_rgb: np.ndarray | None         # (H, W, 3) uint8; None from the overlay stage alone
+    counts: np.ndarray | None            # (H, W) int64: events per pixel (hover readout); None likewise
     labels: WindowLabels
     mask_rgba: np.ndarray | None         # (H, W, 4) uint8 composite of visible masks
     overlays: list[ObjectOverlay] = field(default_factory=list)
@@ -68,14 +71,41 @@ class FrameRequest:
     serial: int = 0
 
 
+@dataclass
+class EventFrame:
+    """The cheap first stage of a frame: the window's event image, shown before the overlays."""
+
+    window: Window
+    n_events: int
+    image_rgb: np.ndarray                # (H, W, 3) uint8
+    counts: np.ndarray                   # (H, W) int64: events per pixel (hover readout)
+    compute_ms: float = 0.0
+
+
+#: Silhouette contours kept by :meth:`FrameComputer.spacetime` (slices on a fixed time grid, keyed by
+#: their poses): a step of one window recomputes about one slice of twelve.
+TUBE_CACHE_SLICES = 96
+
+
 class FrameComputer:
     """Computes :class:`FrameData` and :class:`SpaceTimeData` from requests; caches the
-    rasteriser and per-object geometry between calls (use one instance per worker thread)."""
+    rasteriser and per-object geometry between calls (use one instance per worker thread).
 
-    def __init__(self):
+    Parameters
+    ----------
+    cache : evpose.core.data.event_cache.EventChunkCache, optional
+        Decoded event blocks shared with other computers (thread-safe); windows are read through it
+        and :meth:`prefetch` fills it ahead of the motion. Without it, windows are read from the store.
+    """
+
+    def __init__(self, cache=None):
+        self.cache = cache
         self._annotator: Annotator | None = None
         self._key = None
         self._score_params = None
+        self._last_events = None   # (store, t0, t1, representation) of the last event stage
+        self._motion = None        # (store, t_us, direction, window_us) of the last request, for prefetch
+        self._tubes: dict = {}     # (t_us, pose bytes) -> [(name, in_view, contours)]
 
     def _annotator_for(self, scene: Scene) -> Annotator:
         key = (id(scene.manifest),)
@@ -83,20 +113,70 @@ class FrameComputer:
             self._annotator = Annotator(scene, Request(keypoints=True, masks_visible=True, label_map=True, depth=True,
                                                                amodal=False))   # views show visible masks only
             self._key = key
+            self._tubes.clear()
         self._annotator.scene = scene
         return self._annotator
 
+    def _window_events(self, scene: Scene, t0_us: int, t1_us: int) -> EventArray:
+        if self.cache is not None:
+            return self.cache.window(scene.events, t0_us, t1_us)
+        return scene.events.window(t0_us, t1_us)
+
+    def _note_motion(self, scene: Scene, t_us: int, window_us: int) -> None:
+        prev = self._motion
+        direction = 0
+        if prev is not None and prev[0] is scene.events:
+            direction = int(np.sign(t_us - prev[1])) or prev[2]
+        self._motion = (scene.events, int(t_us), direction, int(window_us))
+
     def frame(self, req: FrameRequest) -> FrameData:
+        """The whole frame at once: the event stage and the overlay stage, one :class:`FrameData`."""
+        ev_frame = self.events_frame(req)
+        data = run_stages(self.overlay_stages(req))
+        return replace(data, image_rgb=ev_frame.image_rgb, counts=ev_frame.counts,
+                       compute_ms=data.compute_ms + ev_frame.compute_ms)
+
+    def events_frame(self, req: FrameRequest) -> EventFrame:
+        """The event stage of ``req`` (always computed, never reused)."""
+        self._last_events = None
+        return run_stages(self.events_stages(req))
+
+    def events_stages(self, req: FrameRequest):
+        """The event stage (cheap: read, image, counts) for a worker that shows the events before the overlays.
+
+        A generator (see :class:`~evpose.app.workers.LatestWorker`): yields None after reading the events (a
+        checkpoint: a request superseded by then stops there) and returns the :class:`EventFrame`, or None
+        when the window, representation and store equal the previous call's (a pose nudge: the view
+        already shows these events)."""
         t_start = time.perf_counter()
         scene, view = req.scene, req.view
         cam = scene.camera
         w = view.window()
-        ev = scene.events.window(w.t0_us, w.t1_us)
+        self._note_motion(scene, view.t_us, view.window_us)
+        key = (scene.events, w.t0_us, w.t1_us, view.representation)   # the store itself: ids are reused
+        if self._last_events == key:
+            return None
+        ev = self._window_events(scene, w.t0_us, w.t1_us)
+        yield None
         image = represent.to_rgb(view.representation, ev, cam.width, cam.height, w.t0_us, w.t1_us)
         pos, neg = polarity_counts(ev, cam.width, cam.height)
-        counts = pos + neg
+        self._last_events = key
+        return EventFrame(w, len(ev), image, pos + neg, (time.perf_counter() - t_start) * 1e3)
+
+    def overlay_stages(self, req: FrameRequest):
+        """The overlay stage (the expensive part: rasterised labels, masks, contours, boxes, scores).
+
+        A generator yielding None after the rasterisation (a checkpoint) and returning a
+        :class:`FrameData` without the event image (``image_rgb`` and ``counts`` are None: the event
+        stage provides them)."""
+        t_start = time.perf_counter()
+        scene, view = req.scene, req.view
+        cam = scene.camera
+        w = view.window()
+        ev = self._window_events(scene, w.t0_us, w.t1_us)
         ann = self._annotator_for(scene)
         labels = ann.annotate(w)
+        yield None
         overlays, mask_rgba, inside = [], None, None
         names = scene.object_names
         if labels.valid:
@@ -121,8 +201,18 @@ class FrameComputer:
                 overlays.append(ov)
             inside = inside_fraction(ev, labels.label_map)
         scores = self._scores(scene, ev, labels)
-        return FrameData(w, len(ev), image, counts, labels, mask_rgba, overlays, inside, scores,
+        return FrameData(w, len(ev), None, None, labels, mask_rgba, overlays, inside, scores,
                          (time.perf_counter() - t_start) * 1e3)
+
+    def prefetch(self, should_stop=None) -> int:
+        """Decode the event blocks ahead of the last request in its direction of motion (both ways before
+        any motion) into the cache: four windows and a block. Returns the blocks read (0 without a
+        cache). For a worker's idle time: ``should_stop()`` is checked between blocks."""
+        if self.cache is None or self._motion is None:
+            return 0
+        store, t_us, direction, window_us = self._motion
+        ahead_us = 4 * window_us + self.cache.block_us
+        return self.cache.prefetch(store, t_us, direction, ahead_us, should_stop)
 
     def _scores(self, scene: Scene, ev: EventArray, labels: WindowLabels) -> dict:
         """The window's alignment score per object (:mod:`core.score`, higher is better), from the
@@ -141,10 +231,23 @@ class FrameComputer:
         return {n: (float(r.score) if r.valid else None) for n, r in zip(names, res)}
 
     def spacetime(self, req: FrameRequest) -> SpaceTimeData:
+        """The space-time data at once (:meth:`spacetime_stages` run to its end)."""
+        return run_stages(self.spacetime_stages(req))
+
+    def spacetime_stages(self, req: FrameRequest):
+        """The space-time data as a generator of checkpoints (yields None after the event read and after
+        each silhouette slice, so a worker drops a superseded request early) returning :class:`SpaceTimeData`.
+
+        Silhouette slices sit on a fixed grid of ``span / slices`` from the window grid's origin (so a step
+        of the current time reuses the slices it still covers) and are cached by their poses: a pose or
+        clock change recomputes them, a step recomputes only the new ones.
+        """
         scene, view = req.scene, req.view
         span = int(view.spacetime_span_us)
         t0 = int(view.t_us - span // 2)
-        ev = scene.events.window(t0, t0 + span)
+        ev = self._window_events(scene, t0, t0 + span)
+        self._note_motion(scene, view.t_us, view.window_us)
+        yield None
         n = len(ev)
         if n > view.spacetime_budget:
             idx = np.linspace(0, n - 1, view.spacetime_budget).astype(np.int64)
@@ -154,28 +257,57 @@ class FrameComputer:
         pts[:, 1] = ev.y
         pts[:, 2] = (ev.t - view.t_us).astype(np.float32) * 1e-3
         tubes = []
-        n_slices = max(int(view.spacetime_slices), 2)
-        times = t0 + (np.arange(n_slices) + 0.5) * (span / n_slices)
-        times = np.rint(times).astype(np.int64)
+        times = slice_times(t0, span, view.spacetime_slices, view.grid_origin_us)
         ann = self._annotator_for(scene)
         T_co, T_bc, valid = ann.poses(times)
         per_obj: dict[str, list[np.ndarray]] = {name: [] for name in scene.object_names}
         for i, t in enumerate(times):
             if not valid[i]:
                 continue
-            lab = ann.annotate(Window(-1, int(t), int(t) + 1, int(t)), pose=(T_co[i], T_bc[i], True))
-            for o in lab.objects:
-                if o.name in view.hidden or not o.in_view:
+            for name, in_view, contours in self._slice_contours(ann, int(t), T_co[i], T_bc[i]):
+                if name in view.hidden or not in_view:
                     continue
-                for c in mask_contours(o.mask_visible):
+                for c in contours:
                     poly = np.empty((len(c), 3), np.float32)
                     poly[:, :2] = c
                     poly[:, 2] = (t - view.t_us) * 1e-3
-                    per_obj[o.name].append(poly)
+                    per_obj[name].append(poly)
+            yield None
         for k, name in enumerate(scene.object_names):
             if per_obj[name]:
                 tubes.append((name, object_color(k), per_obj[name]))
         return SpaceTimeData(int(view.t_us), pts, ev.p.copy(), n, tubes, span)
+
+    def _slice_contours(self, ann: Annotator, t_us: int, T_co: np.ndarray, T_bc: np.ndarray) -> list:
+        """``[(name, in_view, contours)]`` of the objects at ``t_us`` with these poses, cached."""
+        key = (t_us, T_co.tobytes(), T_bc.tobytes())
+        hit = self._tubes.get(key)
+        if hit is not None:
+            return hit
+        lab = ann.annotate(Window(-1, t_us, t_us + 1, t_us), pose=(T_co, T_bc, True))
+        out = [(o.name, bool(o.in_view), mask_contours(o.mask_visible) if o.in_view else []) for o in lab.objects]
+        if len(self._tubes) >= TUBE_CACHE_SLICES:
+            self._tubes.pop(next(iter(self._tubes)))
+        self._tubes[key] = out
+        return out
+
+
+def run_stages(gen):
+    """Run a staged computation (a generator of checkpoints / partial results) to its end; its return value."""
+    try:
+        while True:
+            next(gen)
+    except StopIteration as stop:
+        return stop.value
+
+
+def slice_times(t0_us: int, span_us: int, n_slices: int, origin_us: int = 0) -> np.ndarray:
+    """Times of the silhouette slices in ``[t0_us, t0_us + span_us)``, µs: the multiples of
+    ``span_us / n_slices`` (at least 1 µs) counted from ``origin_us``, so they stay put while the span moves."""
+    step = max(int(span_us) // max(int(n_slices), 2), 1)
+    k0 = -(-(int(t0_us) - int(origin_us)) // step)
+    times = int(origin_us) + step * np.arange(k0, k0 + max(int(n_slices), 2) + 1, dtype=np.int64)
+    return times[times < int(t0_us) + int(span_us)]
 
 
 def inside_fraction(ev: EventArray, label_map: np.ndarray, dilate_px: int = 2) -> float | None:
