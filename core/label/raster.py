@@ -116,11 +116,16 @@ class RasterResult:
     face_index : (H, W) int32 or None
         Index of the winning face within that mesh; ``-1`` where empty. ``None`` unless
         ``want_faces`` was set.
+    amodal : (n, H, W) bool or None
+        Amodal (full) mask of each mesh, as if it were alone in the scene (the same as
+        :meth:`Rasterizer.full_masks`), from the same pass as the z-buffer. ``None`` unless
+        ``want_amodal`` was set.
     """
 
     depth_m: np.ndarray
     obj_index: np.ndarray
     face_index: np.ndarray | None = None
+    amodal: np.ndarray | None = None
 
     def mask(self, k: int) -> np.ndarray:
         """Visible (modal) mask of mesh ``k``: bool ``(H, W)``."""
@@ -622,7 +627,8 @@ class Rasterizer:
         checked = [self._check_mesh(V, F, k) for k, (V, F) in enumerate(meshes)]
         return self._render(checked, want_faces)
 
-    def render_objects(self, models, T_cam_obj, *, want_faces: bool = False) -> RasterResult:
+    def render_objects(self, models, T_cam_obj, *, want_faces: bool = False,
+                       want_amodal: bool = False) -> RasterResult:
         """Rasterise object models posed by ``T_cam_obj``.
 
         Parameters
@@ -632,11 +638,20 @@ class Rasterizer:
             Pose of each model: object frame -> camera frame (metres).
         want_faces : bool
             Also return the per-pixel face index.
+        want_amodal : bool
+            Also return every object's amodal mask (``RasterResult.amodal``, equal to
+            :meth:`full_masks`). The compiled pipeline fills them in the same pass as the
+            z-buffer (one coverage store per covered pixel), instead of a second render.
 
         Models whose bounding box lies outside the view frustum are skipped before their
         vertices are transformed.
         """
-        return self._render(self._posed(models, T_cam_obj), want_faces)
+        posed = self._posed(models, T_cam_obj)
+        if want_amodal and self.backend != "numba":
+            res = self._render(posed, want_faces)
+            res.amodal = self._amodal(posed)
+            return res
+        return self._render(posed, want_faces, want_amodal)
 
     def full_mask(self, model, T_cam_obj) -> np.ndarray:
         """Amodal mask of one object (as if alone in the scene): bool ``(H, W)``."""
@@ -645,17 +660,20 @@ class Rasterizer:
     def full_masks(self, models, T_cam_obj) -> list[np.ndarray]:
         """Amodal masks (each object alone, no occlusion; no depth computed): list of bool
         ``(H, W)`` in the order of ``models``."""
+        return list(self._amodal(self._posed(models, T_cam_obj)))
+
+    def _amodal(self, meshes) -> np.ndarray:
+        """Amodal masks of posed meshes (see :meth:`_posed`): bool ``(n, H, W)``."""
         H, W = self.height, self.width
-        meshes = self._posed(models, T_cam_obj)
         bases = self._bases(meshes)
         masks = np.zeros((len(meshes), H * W + 1), dtype=bool)
         if self.backend == "numba":
             self._frame_compiled(meshes, bases, None, masks)
-            return [m[:-1].reshape(H, W) for m in masks]
-        for pix, gid in self._frame(meshes, bases, want_depth=False):
-            k = np.searchsorted(bases, gid, side="right") - 1
-            masks.ravel()[k * (H * W + 1) + pix] = True
-        return [m[:-1].reshape(H, W) for m in masks]
+        else:
+            for pix, gid in self._frame(meshes, bases, want_depth=False):
+                k = np.searchsorted(bases, gid, side="right") - 1
+                masks.ravel()[k * (H * W + 1) + pix] = True
+        return masks[:, :-1].reshape(len(meshes), H, W)
 
     # ------------------------------------------------------------------ internals
     def _check_mesh(self, vertices, faces, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -794,19 +812,21 @@ class Rasterizer:
         self._acc("pixel tests", time.perf_counter() - t0)
         return results
 
-    def _render(self, meshes, want_faces: bool) -> RasterResult:
+    def _render(self, meshes, want_faces: bool, want_amodal: bool = False) -> RasterResult:
         H, W = self.height, self.width
         bases = self._bases(meshes)
         zbuf = np.full(H * W + 1, _EMPTY_KEY, dtype=np.uint64)
         if self.backend == "numba":
-            self._frame_compiled(meshes, bases, zbuf, None)
+            masks = np.zeros((len(meshes), H * W + 1), dtype=bool) if want_amodal else None
+            self._frame_compiled(meshes, bases, zbuf, masks)
             t0 = time.perf_counter()
             depth = np.full(H * W, np.inf, dtype=np.float32)
             obj = np.full(H * W, -1, dtype=np.int16)
             face = np.full(H * W, -1, dtype=np.int32) if want_faces else _NO_FACE
             _kern.decode(zbuf, bases, depth, obj, face)
             self._acc("decode", time.perf_counter() - t0)
-            return RasterResult(depth.reshape(H, W), obj.reshape(H, W), face.reshape(H, W) if want_faces else None)
+            return RasterResult(depth.reshape(H, W), obj.reshape(H, W), face.reshape(H, W) if want_faces else None,
+                                None if masks is None else masks[:, :-1].reshape(len(meshes), H, W))
         results = self._frame(meshes, bases, want_depth=True)
         t0 = time.perf_counter()
         for pix, key in results:
@@ -832,7 +852,8 @@ class Rasterizer:
     # ------------------------------------------------------------------ compiled pipeline
     def _frame_compiled(self, meshes, bases: np.ndarray, zbuf: np.ndarray | None, masks: np.ndarray | None) -> None:
         """The numba pipeline: every live mesh's covered pixels go into ``zbuf`` (keys as in
-        :meth:`_frame`), or into its row of ``masks`` (amodal, no depth) when ``zbuf`` is None."""
+        :meth:`_frame`) unless it is None, and into its row of ``masks`` (amodal, no depth test)
+        unless that is None; both in the same pass when both are given."""
         W, H = self.width, self.height
         c_bend, eps = np.float32(self._c), np.float32(_EPS_PX)
         for k, (V, F) in enumerate(meshes):
@@ -851,13 +872,14 @@ class Rasterizer:
             t1 = time.perf_counter()
             self._acc("kernel", t1 - t0)
             if n_tile:
-                results: list = []
-                self._tile_path(vs.V, vs.FT, tile[:n_tile], int(bases[k]), zbuf is not None, results)
-                for pix, key in results:
-                    if zbuf is None:
-                        masks[k, pix] = True
-                    else:
-                        _kern.zbuf_min(zbuf, pix, key)
+                for want_depth in [w for w, out in ((True, zbuf), (False, masks)) if out is not None]:
+                    results: list = []
+                    self._tile_path(vs.V, vs.FT, tile[:n_tile], int(bases[k]), want_depth, results)
+                    for pix, key in results:
+                        if want_depth:
+                            _kern.zbuf_min(zbuf, pix, key)
+                        else:
+                            masks[k, pix] = True
                 self._acc("tile path", time.perf_counter() - t1)
 
     def _vertex_stage_compiled(self, V: np.ndarray, F: np.ndarray):
@@ -900,7 +922,7 @@ class Rasterizer:
         self.render([(V.astype(np.float32), F)])
         model = ObjectModel("warm-up", V, F)
         self.full_masks([model], [np.eye(4)])
-        self.render_objects([model], [np.eye(4)])
+        self.render_objects([model], [np.eye(4)], want_amodal=True)
         self.timings.clear()
         return time.perf_counter() - t0
 

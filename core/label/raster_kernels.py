@@ -190,10 +190,11 @@ if HAVE_NUMBA:
         gid0 : uint64
             Global id of the mesh's first triangle.
         zbuf : (H W + 1,) uint64
-            z-buffer of keys ``(float32 z bits << 32) | gid``, updated in place (depth mode).
+            z-buffer of keys ``(float32 z bits << 32) | gid``, updated in place when its length
+            is not zero (depth).
         mask : (H W + 1,) bool
-            Coverage written in place instead of the z-buffer when its length is not zero
-            (no depth test; pairs with ``1/z <= 0`` count, as in the numpy path).
+            Coverage (amodal mask) written in place when its length is not zero: no depth test;
+            pairs with ``1/z <= 0`` count, as in the numpy path. Both may be given (one pass).
         tile_out : (F,) intp
             Receives the faces that must take the tile path.
 
@@ -203,7 +204,8 @@ if HAVE_NUMBA:
             Number of faces written to ``tile_out``.
         """
         n_tile = _tile_faces(FT, bad, tile_out)
-        depth_mode = len(mask) == 0
+        depth_mode = len(zbuf) > 0
+        mask_mode = len(mask) > 0
         one = np.float32(1.0)
         fbuf = np.empty(1, np.float32)
         ubuf = fbuf.view(np.uint32)
@@ -249,8 +251,9 @@ if HAVE_NUMBA:
                     e2 = e2 + c5 * dy
                     if not (e0 >= 0 and e2 >= 0 and e0 + e2 <= area):
                         continue
-                    if not depth_mode:
+                    if mask_mode:
                         mask[p] = True
+                    if not depth_mode:
                         continue
                     wb = e2 * d1
                     wb = wb + e0 * d2

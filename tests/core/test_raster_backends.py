@@ -1,7 +1,7 @@
 """The numba rasteriser (core/label/raster_kernels.py) against the numpy pipeline it replaces.
 
 Both backends of :class:`Rasterizer` must give the same depth (bit for bit), object index,
-face index and amodal masks: on the shared tiny scene's objects, on procedural scenes that take
+face index and amodal masks (also from the one-pass ``render_objects(want_amodal=True)``): on the shared tiny scene's objects, on procedural scenes that take
 every path (one-pixel, 2 x 2 and long boxes, near-plane clipping, pixels off the image, a
 zero-area triangle, the pinhole model) and on real YCB meshes (skipped without the assets), where
 the masks also match open3d's ray caster (IoU 1.0000).
@@ -41,8 +41,17 @@ def assert_same(old: Rasterizer, new: Rasterizer, models, poses) -> None:
     assert np.array_equal(a.obj_index, b.obj_index), f"{np.count_nonzero(a.obj_index != b.obj_index)} px differ"
     assert np.array_equal(a.face_index, b.face_index)
     assert np.array_equal(a.depth_m.view(np.uint32), b.depth_m.view(np.uint32))   # same float32 bits
-    for ma, mb in zip(old.full_masks(models, poses), new.full_masks(models, poses)):
+    full = old.full_masks(models, poses)
+    for ma, mb in zip(full, new.full_masks(models, poses)):
         assert np.array_equal(ma, mb)
+    for r in (old, new):       # one pass: the same z-buffer plus the amodal masks of full_masks
+        c = r.render_objects(models, poses, want_faces=True, want_amodal=True)
+        assert np.array_equal(c.obj_index, a.obj_index) and np.array_equal(c.face_index, a.face_index)
+        assert np.array_equal(c.depth_m.view(np.uint32), a.depth_m.view(np.uint32))
+        assert c.amodal.shape == (len(models),) + a.obj_index.shape
+        for k, m in enumerate(full):
+            assert np.array_equal(c.amodal[k], m), (r.backend, k, np.count_nonzero(c.amodal[k] != m))
+    assert a.amodal is None
 
 
 def test_backends_are_named_and_checked():
