@@ -8,11 +8,18 @@ cancel, for exports and estimations.
 from __future__ import annotations
 
 import inspect
+import sys
 import threading
 import traceback
 from typing import Any, Callable
 
 from PySide6 import QtCore, QtWidgets
+
+
+#: GIL switch interval while worker threads run, s (Python's default is 5 ms). The GUI thread paints through many
+#: short Python calls (pyqtgraph items); against a worker busy in Python each call may wait a whole interval for
+#: the GIL, which delayed the paint of an event image until its overlays were done.
+GIL_SWITCH_INTERVAL_S = 0.0005
 
 
 class LatestWorker(QtCore.QObject):
@@ -48,6 +55,8 @@ class LatestWorker(QtCore.QObject):
         #: requests replaced by a newer one before they started / abandoned at a checkpoint
         self.replaced = 0
         self.abandoned = 0
+        if sys.getswitchinterval() > GIL_SWITCH_INTERVAL_S:
+            sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self._thread = QtCore.QThread()
         self._thread.setObjectName(name)
         self.moveToThread(self._thread)
