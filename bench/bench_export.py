@@ -1,112 +1,229 @@
-"""Export throughput (windows/s) of the three formats with 1 and 2 worker processes.
+"""Export throughput (windows/s, one process) of the three formats on two scenes, against a baseline commit
+measured in the same run.
 
-Run: ``.venv/bin/python bench/bench_export.py [--quick] [--durable batch|file|none] [--formats epose,bop,h5]``.
+Run: ``.venv/bin/python bench/bench_export.py [--quick] [--repeat N] [--json] [--formats epose,bop,h5]
+[--scenes ycb,synth3] [--baseline REV | --no-baseline] [--durable batch|file|none] [--jobs 1]``.
 
-The scene is a synthetic 3-object DAVIS346 sequence (``evpose.core.sim.synth.generate``: box, cylinder, flatbox,
-trajectory B at 0.5 m/s, 2 s, seed 1), generated once into ``bench/.data/synth_3obj_2s``. Every run
-exports all 10 ms windows (``--quick``: the first 0.6 s, through a verified review mark) into a fresh
-folder with the full product set of the format: E-POSE (event, mask_all + 3 object masks, segmented +
-3 object segmentations, three-channel, bbox.txt, .mat = 13 files per window), BOP (rgb + 6 masks),
-HDF5 (label map, counts, three-channel frames and all label arrays).
+Scenes (``bench/synth_scenes.py``, generated once into ``bench/.data``):
 
-Printed: one row per format and job count: windows, wall time, windows/s, the ratio 2 jobs / 1 job,
-the pool start-up time, and the per-window time split in ms (wall time summed over the windows, all processes):
-``events`` (read), ``annotate`` (poses, keypoints, rasterisation: evpose.core.label.annotate / evpose.core.label.raster),
-``images`` (frames, masks, PNG encoding), ``mat`` (.mat encoding), ``write`` (temp files, renames,
-syncfs per chunk / HDF5 writes). ``excl.ann`` is the windows/s the export would reach per process if
-annotation were free (1000 / sum of the other stages), i.e. the throughput of this module's own work.
+- ``ycb``: ``ycb_5obj_5s``, the realistic scene of issue 14: 5 objects with E-POSE's real YCB meshes,
+  5 s, ~5 M events, 495 windows of 10 ms;
+- ``synth3``: ``synth_3obj_2s``, 3 coarse built-in shapes (box, cylinder, flatbox), 2 s, 201 windows.
+
+Every export writes all 10 ms windows (``--quick``: the first 0.6 s, through a verified review mark) of the
+full product set of its format into a fresh folder of this run: E-POSE (event, mask_all + one mask per
+object, segmented + one per object, three-channel, bbox.txt, .mat: 13 files per window with 3 objects, 17
+with 5), BOP (rgb + 2 masks per object), HDF5 (label map, counts, three-channel frames, all label arrays).
+
+Baseline: the code of ``--baseline`` (default ``8c676cd``, "before issue 14 export work") checked out with
+``git worktree`` into this run's folder and imported in a child process through a ``PYTHONPATH`` folder
+whose ``evpose`` links to it; the current tree runs in the same kind of child process, and the two are
+interleaved (baseline, current, then current, baseline on the next repeat). Each child first exports one
+window (imports, compiled kernels from numba's disk cache: not timed), then times one export of the scene
+with ``jobs`` processes; scene opening, meshes, rasteriser set-up and the aggregate files are part of the
+timed export, as for a user. Printed per scene, format and code: windows, windows/s (median and range over
+the repeats), windows per CPU-second of the child (less sensitive to other processes and to disk waits),
+the per-window time split in ms (``events`` read, ``annotate`` = poses, keypoints, rasterisation,
+``images`` = frames, masks, PNG encoding, ``mat`` = .mat encoding, ``write`` = temp files, renames, syncfs
+per chunk / HDF5 writes), and current / baseline. The load average is printed with every figure: the
+machine's cores may be shared.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
-import shutil
+import resource
+import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import SCENE, ensure_scene, run_dir  # bench/ is the script's folder
+from synth_scenes import DATA, SCENE, ensure_scene, ensure_ycb_scene, run_dir  # bench/ is the script's folder
+
+REPO = Path(__file__).resolve().parents[1]
+BASELINE = "8c676cd"
+SCENES = {"ycb": "ycb_5obj_5s (5 real YCB meshes, 5 s)", "synth3": "synth_3obj_2s (3 coarse shapes, 2 s)"}
+PYTHON = sys.executable
 
 
-def run(fmt: str, jobs: int, quick: bool, durable, work) -> dict:
+# ------------------------------------------------------------------------------------------- child
+def child(args: dict) -> dict:
+    """One timed export in this (child) process; returns its figures."""
+    import evpose
     from evpose.core.data.scene import Scene
     from evpose.core.document.corrections import ReviewMark
     from evpose.core.export import export_scene
 
-    out = work / f"{fmt}_{jobs}_{time.perf_counter_ns()}"     # a new folder in this run's own folder
-    scene = Scene.open(SCENE)
-    scene.corrections.set(("offset_us",), 20_000)
-    kw = {}
-    if quick:
-        t0 = scene.events.t_first_us
-        scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + 600_000, "verified")])
-        kw["only_verified"] = True
+    fmt, out = args["fmt"], Path(args["out"])
     opts = {"three_channel": True} if fmt == "h5" else None
-    import resource
+
+    def export(folder, span_us):
+        scene = Scene.open(args["scene"])
+        scene.corrections.set(("offset_us",), 20_000)
+        kw = {}
+        if span_us is not None:
+            t0 = scene.events.t_first_us
+            scene.corrections.set(("reviews",), [ReviewMark(t0, t0 + span_us, "verified")])
+            kw["only_verified"] = True
+        try:
+            return export_scene(scene, fmt, folder, jobs=args["jobs"], durable=args["durable"],
+                                format_options=opts, **kw)
+        finally:
+            scene.close()
+
+    export(out / "warm", 10_000)                   # imports, kernels: not timed
 
     def cpu():
         a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
         return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
+    load0 = os.getloadavg()[0]
     c0, t = cpu(), time.perf_counter()
-    s = export_scene(scene, fmt, out, jobs=jobs, durable=durable, format_options=opts, **kw)
-    wall = time.perf_counter() - t
-    cpu_s = cpu() - c0
-    scene.close()
+    s = export(out / "timed", 600_000 if args["quick"] else None)
+    wall, cpu_s = time.perf_counter() - t, cpu() - c0
     n = s.written + s.unlabeled * (fmt == "h5")
-    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    shutil.rmtree(out, ignore_errors=True)
-    per = {k: v / max(n, 1) * 1e3 for k, v in s.timings_s.items()}
-    own = sum(v for k, v in per.items() if k != "annotate")
-    return {"fmt": fmt, "jobs": jobs, "n": n, "wall": wall, "rate": n / wall, "per": per, "startup": s.pool_startup_s,
-            "cpu": cpu_s / wall,
-            "excl": 1000.0 / own if own > 0 else float("inf"), "mb": size / 1e6}
+    return {"evpose": str(Path(evpose.__file__).resolve().parent), "n": n, "wall_s": wall, "cpu_s": cpu_s,
+            "rate": n / wall, "cpu_rate": n / max(cpu_s, 1e-9), "load": [load0, os.getloadavg()[0]],
+            "stages_ms": {k: v / max(n, 1) * 1e3 for k, v in s.timings_s.items()}}
+
+
+def run_child(code_path: Path | None, **args) -> dict:
+    """Run :func:`child` in a fresh interpreter, importing evpose from ``code_path`` (a folder whose
+    ``evpose`` entry is the code to measure; None: the installed tree)."""
+    env = dict(os.environ)
+    if code_path is not None:
+        env["PYTHONPATH"] = str(code_path) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    p = subprocess.run([PYTHON, __file__, "--child", json.dumps(args)], env=env, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"export child failed ({code_path or 'current'}):\n{p.stderr[-3000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+# ------------------------------------------------------------------------------------------- baseline code
+def add_baseline(work: Path, rev: str) -> tuple[Path, str]:
+    """Check out ``rev`` with ``git worktree`` under ``work``; returns the PYTHONPATH folder whose
+    ``evpose`` links to it, and the commit's one-line description."""
+    tree = work / "baseline_tree"
+    subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-q", str(tree), rev], check=True)
+    path = work / "baseline_path"
+    path.mkdir()
+    (path / "evpose").symlink_to(tree)
+    desc = subprocess.run(["git", "-C", str(REPO), "log", "-1", "--format=%h %s", rev], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    return path, desc
+
+
+def remove_baseline(work: Path) -> None:
+    tree = work / "baseline_tree"
+    if tree.exists():
+        subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)], check=False)
+
+
+# ------------------------------------------------------------------------------------------- report
+def summarise(runs: list[dict]) -> dict:
+    rates = [r["rate"] for r in runs]
+    return {"n": runs[0]["n"], "rate_median": statistics.median(rates), "rate_min": min(rates),
+            "rate_max": max(rates), "cpu_rate_median": statistics.median(r["cpu_rate"] for r in runs),
+            "load": [round(v, 2) for r in runs for v in r["load"]],
+            "stages_ms": {k: statistics.median(r["stages_ms"][k] for r in runs) for k in runs[0]["stages_ms"]},
+            "runs": len(runs)}
+
+
+def print_table(results: dict, baseline_desc: str | None) -> None:
+    hdr = (f"{'scene':<8}{'format':<7}{'code':<9}{'windows':>8}{'win/s':>8}{'range':>13}{'w/cpu-s':>9}"
+           f"{'ratio':>7}{'events':>8}{'annot':>8}{'images':>8}{'mat':>7}{'write':>7}  load")
+    print(hdr)
+    print("-" * len(hdr))
+    for scene, per_fmt in results.items():
+        for fmt, codes in per_fmt.items():
+            for code in ("current", "baseline"):
+                r = codes.get(code)
+                if r is None:
+                    continue
+                ratio = (f"{codes['ratio']:>7.2f}" if code == "current" and "ratio" in codes else f"{'':>7}")
+                p = r["stages_ms"]
+                print(f"{scene:<8}{fmt:<7}{code:<9}{r['n']:>8}{r['rate_median']:>8.1f}"
+                      f"{r['rate_min']:>6.1f}-{r['rate_max']:<6.1f}{r['cpu_rate_median']:>9.1f}{ratio}"
+                      f"{p['events']:>8.2f}{p['annotate']:>8.2f}{p['images']:>8.2f}{p['mat']:>7.2f}{p['write']:>7.2f}"
+                      f"  {'/'.join(f'{v:.1f}' for v in r['load'])}")
+    print(f"baseline = {baseline_desc}" if baseline_desc else "no baseline measured")
+    print("win/s = median over the repeats (range: min-max); w/cpu-s = windows per CPU-second of the export's\n"
+          "process(es); ratio = current / baseline (medians); per-window stage columns in ms (medians);\n"
+          "load = 1-minute load average at the start/end of each timed export")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="first 0.6 s only")
-    ap.add_argument("--durable", default="batch", choices=("batch", "file", "none"))
+    ap.add_argument("--quick", action="store_true", help="first 0.6 s of each scene only")
+    ap.add_argument("--repeat", type=int, default=1, help="timed exports per scene, format and code")
     ap.add_argument("--formats", default="epose,bop,h5")
-    ap.add_argument("--jobs", default="1,2")
-    ap.add_argument("--repeat", type=int, default=1, help="runs per configuration; the fastest is shown")
+    ap.add_argument("--scenes", default="ycb,synth3", help="comma list of: " + ", ".join(SCENES))
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--durable", default="batch", choices=("batch", "file", "none"))
+    ap.add_argument("--baseline", default=BASELINE, help="git revision measured against (default %(default)s)")
+    ap.add_argument("--no-baseline", action="store_true")
+    ap.add_argument("--json", action="store_true", help="print one JSON document of the headline figures")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    ensure_scene()
-    import numpy as np
-
+    if args.child:
+        print(json.dumps(child(json.loads(args.child))))
+        return 0
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    bad = [s for s in scenes if s not in SCENES]
+    if bad:
+        ap.error(f"--scenes: unknown {bad}; choose from {list(SCENES)}")
+    paths = {"ycb": lambda: ensure_ycb_scene(), "synth3": lambda: ensure_scene()}
+    scene_dirs = {s: paths[s]() for s in scenes}
+    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+    log = sys.stderr
     load = os.getloadavg()
-    print(f"numpy {np.__version__}, {os.cpu_count()} cores, load average {load[0]:.1f} {load[1]:.1f}; "
-          f"scene {SCENE.name} (DAVIS346, 3 objects, 0.5 m/s), 10 ms windows, durable={args.durable}")
-    rows = []
-    with run_dir("export_out") as work:       # every export goes into this run's own folder, removed at the end
-        for fmt in args.formats.split(","):
-            for jobs in (int(j) for j in args.jobs.split(",")):
-                runs = [run(fmt, jobs, args.quick, args.durable, work) for _ in range(max(1, args.repeat))]
-                rows.append(max(runs, key=lambda r: r["rate"]))
-                r = rows[-1]
-                print(f"  done {fmt} jobs={jobs}: {r['rate']:.1f} windows/s", file=sys.stderr)
-    hdr = (f"{'format':<7}{'jobs':>5}{'windows':>9}{'wall s':>8}{'start s':>8}{'win/s':>8}{'2j/1j':>7}{'excl.st':>8}{'cpu%':>6}{'w/cpu-s':>8}{'MB':>7}"
-           f"{'events':>8}{'annot':>8}{'images':>8}{'mat':>7}{'write':>7}{'excl.ann':>9}")
-    print(hdr)
-    print("-" * len(hdr))
-    base = {}
-    for r in rows:
-        if r["jobs"] == 1:
-            base[r["fmt"]] = r["rate"]
-        ratio = r["rate"] / base[r["fmt"]] if r["jobs"] != 1 and r["fmt"] in base else 1.0
-        ratio_st = (r["n"] / max(r["wall"] - r["startup"], 1e-9)) / base[r["fmt"]] if r["fmt"] in base else 1.0
-        p = r["per"]
-        print(f"{r['fmt']:<7}{r['jobs']:>5}{r['n']:>9}{r['wall']:>8.2f}{r['startup']:>8.2f}{r['rate']:>8.1f}{ratio:>7.2f}{ratio_st:>8.2f}{r['cpu'] * 100:>6.0f}{r['rate'] / r['cpu']:>8.1f}{r['mb']:>7.1f}"
-              f"{p['events']:>8.2f}{p['annotate']:>8.2f}{p['images']:>8.2f}{p['mat']:>7.2f}{p['write']:>7.2f}"
-              f"{r['excl']:>9.0f}")
-    print("2j/1j = windows/s with 2 jobs / with 1 job; excl.st = the same without the pool start-up;\n"
-          "cpu% = CPU time of all processes / wall time (200 % = both cores busy); w/cpu-s = windows per\n"
-          "CPU-second (= windows/s per fully available core, pool start-up included);\n"
-          "start s = process-pool start-up (spawn, imports, scene) included in wall; per-window columns in ms\n"
-          "(summed over processes; with 2 jobs 'write' includes the parent's syncfs while workers run);\n"
-          "excl.ann = windows/s per process without annotation")
+    print(f"{os.cpu_count()} cores, load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f}; 10 ms windows, "
+          f"jobs={args.jobs}, durable={args.durable}, repeat={args.repeat}{', quick' if args.quick else ''}",
+          file=log)
+    raw: dict = {}
+    baseline_desc = None
+    with run_dir("export_out") as work:       # every export (and the baseline checkout) in this run's folder
+        try:
+            codes = [("current", None)]
+            if not args.no_baseline:
+                base_path, baseline_desc = add_baseline(work, args.baseline)
+                codes.append(("baseline", base_path))
+            k = 0
+            for rep in range(max(1, args.repeat)):
+                order = codes if rep % 2 else codes[::-1]          # interleaved: baseline first, then current...
+                for scene in scenes:
+                    for fmt in formats:
+                        for code, path in order:
+                            k += 1
+                            r = run_child(path, scene=str(scene_dirs[scene]), fmt=fmt, jobs=args.jobs,
+                                          durable=args.durable, quick=args.quick, out=str(work / f"run{k}"))
+                            raw.setdefault(scene, {}).setdefault(fmt, {}).setdefault(code, []).append(r)
+                            print(f"  {scene} {fmt} {code}: {r['n']} windows, {r['rate']:.1f} windows/s, "
+                                  f"{r['cpu_rate']:.1f} per CPU-s, load {r['load'][0]:.1f}/{r['load'][1]:.1f} "
+                                  f"({r['evpose']})", file=log)
+                            subprocess.run(["rm", "-rf", str(work / f"run{k}")], check=False)
+        finally:
+            remove_baseline(work)
+    results = {}
+    for scene, per_fmt in raw.items():
+        for fmt, per_code in per_fmt.items():
+            entry = {code: summarise(runs) for code, runs in per_code.items()}
+            if "baseline" in entry:
+                entry["ratio"] = entry["current"]["rate_median"] / entry["baseline"]["rate_median"]
+                entry["cpu_ratio"] = entry["current"]["cpu_rate_median"] / entry["baseline"]["cpu_rate_median"]
+            results.setdefault(scene, {})[fmt] = entry
+    if args.json:
+        doc = {"benchmark": "export", "unit": "windows/s", "jobs": args.jobs, "durable": args.durable,
+               "quick": args.quick, "repeat": args.repeat, "cores": os.cpu_count(),
+               "load_average_end": [round(v, 2) for v in os.getloadavg()],
+               "baseline": baseline_desc, "scenes": {s: SCENES[s] for s in scenes}, "results": results}
+        print(json.dumps(doc, indent=1))
+    else:
+        print_table(results, baseline_desc)
     return 0
 
 

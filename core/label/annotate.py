@@ -11,10 +11,12 @@ Products (computed only when requested, see :class:`~evpose.core.label.labels.Re
 
 Work left out where the scene does not need it: objects whose 3D box is outside the view are
 culled before rasterising; all objects are rasterised once per window (one z-buffer gives every
-visible mask); a full mask is rendered separately only for an object that another object
-actually hides somewhere: a visible pixel of another object whose ray lies inside the object's
-projected 3D box (otherwise full == visible), so a single-object scene or objects side by side
-never render twice (:mod:`evpose.core.label.visibility`); rasterisers and per-object geometry are cached.
+visible mask); a full mask is needed only for an object that another object actually hides
+somewhere: a visible pixel of another object whose ray lies inside the object's projected 3D box
+(otherwise full == visible, :mod:`evpose.core.label.visibility`). When the projected boxes of two
+objects in view overlap, the z-buffer's pass also stores every object's amodal mask
+(``Rasterizer.render_objects(want_amodal=True)``), so a hidden object costs no second render and a
+single-object scene or objects side by side pay nothing; rasterisers and per-object geometry are cached.
 Windows whose label time falls outside the trajectory get no label, with the reason.
 """
 from __future__ import annotations
@@ -99,8 +101,11 @@ class Annotator:
         if not req.needs_raster:
             return labels
         visible = [k for k, lab in enumerate(labels.objects) if lab.in_view]
-        label_map, counts = self._label_map(labels, visible, T_co)
-        self._mask_labels(labels, visible, T_co, boxes, label_map, counts)
+        # amodal masks from the z-buffer's own pass when an object may hide another (their boxes overlap)
+        want_amodal = (req.amodal or req.masks_full) and any(
+            boxes_overlap(boxes[j], boxes[k]) for a, j in enumerate(visible) for k in visible[a + 1:])
+        label_map, counts, amodal = self._label_map(labels, visible, T_co, want_amodal)
+        self._mask_labels(labels, visible, T_co, boxes, label_map, counts, amodal)
         if req.label_map:
             labels.label_map = label_map
         if req.segment_events:
@@ -110,37 +115,42 @@ class Annotator:
     def _box_labels(self, labels: WindowLabels, T_co: np.ndarray) -> list:
         """One :class:`ObjectLabel` per object (pose, whether its 3D box is in view, and the box corners and
         centre in the camera and in pixels when keypoints are requested) appended to ``labels``; returns each
-        object's silhouette bound in the normalised plane (:func:`projected_box`; None when out of view)."""
+        object's silhouette bound in the normalised plane (:func:`projected_box`; None when out of view).
+        The corners and centres of all objects are projected in one call (the projection is per point)."""
         req, cam = self.request, self.camera
-        boxes = []
+        boxes, cams = [], []
         for k, name in enumerate(self.names):
             model, corners, centre = self._geometry[name]
             T = T_co[k]
             c_cam = apply_T(T, corners)
-            uv, _ = cam.project(c_cam)
             # in view unless the whole box is behind the near plane or outside the image
             in_view = box_in_view(cam, c_cam)
             lab = ObjectLabel(name, model.class_id, T, in_view)
             if req.keypoints:
                 lab.corners_cam = c_cam
-                lab.corners_uv = uv
-                centre_cam = apply_T(T, centre[None])[0]
-                lab.center_cam = centre_cam
-                cuv, _ = cam.project(centre_cam[None])
-                lab.center_uv = cuv[0]
+                lab.center_cam = apply_T(T, centre[None])[0]
+                cams += [c_cam, lab.center_cam[None]]
             labels.objects.append(lab)
             boxes.append(projected_box(cam, c_cam) if in_view else None)
+        if cams:
+            uv = cam.project(np.concatenate(cams))[0].reshape(len(self.names), 9, 2)
+            for lab, uv_k in zip(labels.objects, uv):
+                lab.corners_uv, lab.center_uv = uv_k[:8], uv_k[8]
         return boxes
 
-    def _label_map(self, labels: WindowLabels, visible: list[int], T_co: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _label_map(self, labels: WindowLabels, visible: list[int], T_co: np.ndarray,
+                   want_amodal: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """One z-buffered render of the objects in view: the ``(H, W)`` int16 map of object indices (-1:
-        background) and the visible pixel count per object; sets ``labels.depth_m`` when depth is requested."""
+        background), the visible pixel count per object and, with ``want_amodal``, the ``(len(visible), H, W)``
+        amodal masks of the same pass (else None); sets ``labels.depth_m`` when depth is requested."""
         req, cam = self.request, self.camera
         H, W = cam.height, cam.width
         label_map = np.full((H, W), -1, np.int16)
+        amodal = None
         if visible:
             models = [self._geometry[self.names[k]][0] for k in visible]
-            res = self.raster.render_objects(models, [T_co[k] for k in visible])
+            res = self.raster.render_objects(models, [T_co[k] for k in visible], want_amodal=want_amodal)
+            amodal = res.amodal
             obj = res.obj_index
             lut = np.asarray(visible, dtype=np.int16)
             covered = obj >= 0
@@ -152,12 +162,13 @@ class Annotator:
             counts = np.zeros(len(self.names), np.int64)
             if req.depth:
                 labels.depth_m = np.full((H, W), np.inf, np.float32)
-        return label_map, counts
+        return label_map, counts, amodal
 
     def _mask_labels(self, labels: WindowLabels, visible: list[int], T_co: np.ndarray, boxes: list,
-                     label_map: np.ndarray, counts: np.ndarray) -> None:
+                     label_map: np.ndarray, counts: np.ndarray, amodal: np.ndarray | None = None) -> None:
         """Visible and full masks, pixel counts and 2D boxes of the objects in view; a full mask is
-        rendered only for an object that another object really hides (see the module docstring)."""
+        needed only for an object that another object really hides (see the module docstring): taken
+        from ``amodal`` (the label map's own pass, one per visible object) when given, else rendered."""
         req, cam = self.request, self.camera
         ray_cache: dict[int, np.ndarray] = {}
 
@@ -183,7 +194,8 @@ class Annotator:
                 full = vis
                 lab.px_count_all, lab.bbox_obj = lab.px_count_visib, lab.bbox_visib
             elif req.amodal or req.masks_full:
-                full = self.raster.full_mask(self._geometry[lab.name][0], T_co[k])
+                full = (amodal[visible.index(k)] if amodal is not None
+                        else self.raster.full_mask(self._geometry[lab.name][0], T_co[k]))
                 lab.px_count_all, lab.bbox_obj = int(np.count_nonzero(full)), mask_bbox(full)
             if req.masks_visible:
                 lab.mask_visible = vis
