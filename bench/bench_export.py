@@ -2,7 +2,8 @@
 measured in the same run.
 
 Run: ``.venv/bin/python bench/bench_export.py [--quick] [--repeat N] [--json] [--formats epose,bop,h5]
-[--scenes ycb,synth3] [--baseline REV | --no-baseline] [--durable batch|file|none] [--jobs 1]``.
+[--scenes ycb,synth3] [--baseline REV | --no-baseline] [--durable batch|file|none] [--jobs 1]``
+(``--json``: the JSON document on stdout, the table on stderr).
 
 Scenes (``bench/synth_scenes.py``, generated once into ``bench/.data``):
 
@@ -133,11 +134,11 @@ def summarise(runs: list[dict]) -> dict:
             "runs": len(runs)}
 
 
-def print_table(results: dict, baseline_desc: str | None) -> None:
+def print_table(results: dict, baseline_desc: str | None, file=None) -> None:
     hdr = (f"{'scene':<8}{'format':<7}{'code':<9}{'windows':>8}{'win/s':>8}{'range':>13}{'w/cpu-s':>9}"
            f"{'ratio':>7}{'events':>8}{'annot':>8}{'images':>8}{'mat':>7}{'write':>7}  load")
-    print(hdr)
-    print("-" * len(hdr))
+    print(hdr, file=file)
+    print("-" * len(hdr), file=file)
     for scene, per_fmt in results.items():
         for fmt, codes in per_fmt.items():
             for code in ("current", "baseline"):
@@ -149,11 +150,11 @@ def print_table(results: dict, baseline_desc: str | None) -> None:
                 print(f"{scene:<8}{fmt:<7}{code:<9}{r['n']:>8}{r['rate_median']:>8.1f}"
                       f"{r['rate_min']:>6.1f}-{r['rate_max']:<6.1f}{r['cpu_rate_median']:>9.1f}{ratio}"
                       f"{p['events']:>8.2f}{p['annotate']:>8.2f}{p['images']:>8.2f}{p['mat']:>7.2f}{p['write']:>7.2f}"
-                      f"  {'/'.join(f'{v:.1f}' for v in r['load'])}")
-    print(f"baseline = {baseline_desc}" if baseline_desc else "no baseline measured")
+                      f"  {'/'.join(f'{v:.1f}' for v in r['load'])}", file=file)
+    print(f"baseline = {baseline_desc}" if baseline_desc else "no baseline measured", file=file)
     print("win/s = median over the repeats (range: min-max); w/cpu-s = windows per CPU-second of the export's\n"
           "process(es); ratio = current / baseline (medians); per-window stage columns in ms (medians);\n"
-          "load = 1-minute load average at the start/end of each timed export")
+          "load = 1-minute load average at the start/end of each timed export", file=file)
 
 
 def main(argv=None) -> int:
@@ -221,6 +222,7 @@ def main(argv=None) -> int:
                "quick": args.quick, "repeat": args.repeat, "cores": os.cpu_count(),
                "load_average_end": [round(v, 2) for v in os.getloadavg()],
                "baseline": baseline_desc, "scenes": {s: SCENES[s] for s in scenes}, "results": results}
+        print_table(results, baseline_desc, file=sys.stderr)      # the table for people, the JSON on stdout
         print(json.dumps(doc, indent=1))
     else:
         print_table(results, baseline_desc)

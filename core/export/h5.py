@@ -51,11 +51,10 @@ from evpose.core.export.h5_file import (
     need_bytes,
     within_end_of_allocation,
 )
+from evpose.core.export.epose import three_channel_image
 from evpose.core.export.options import ExportError
 from evpose.core.export.writer import FormatWriter
 from evpose.core.label.event_frames.counts import polarity_counts
-from evpose.core.label.event_frames.display import three_channel_rgb
-from evpose.core.label.event_frames.three_channel import three_channel
 from evpose.core.label.labels import Request
 
 #: Rows buffered before one write per dataset.
@@ -287,8 +286,8 @@ class H5Writer(FormatWriter):
         np.minimum(pos, COUNTS_MAX, out=counts[0], casting="unsafe")
         np.minimum(neg, COUNTS_MAX, out=counts[1], casting="unsafe")
         p = {"row": task.row, "frames/counts": counts}
-        if self.three_channel:
-            p["frames/three_channel"] = three_channel_rgb(three_channel(ev, W, H, w.t0_us, w.t1_us))
+        if self.three_channel:      # three_channel_rgb(three_channel(...)) computed at the event pixels only
+            p["frames/three_channel"] = three_channel_image(ev, W, H, w.t0_us, (pos | neg).ravel())
         if labels is not None:
             objs = [labels.objects[k] for k in wctx.sel]
             p["T_cam_obj"] = np.stack([o.T_cam_obj for o in objs])

@@ -192,8 +192,18 @@ def test_full_masks_are_rendered_exactly_when_something_hides_the_object(scene, 
     box = lab.objects[scene.object_names.index("box")]
     assert rendered or amodal_passes, "the hidden box needs its full mask rendered"
     assert not (rendered and amodal_passes), "rendered twice"
+    if ann.raster.backend == "numba":
+        assert amodal_passes and not rendered, "the compiled pass gives the amodal masks: no second render"
     assert box.mask_full.sum() > box.mask_visible.sum()
     assert np.array_equal(box.mask_full, orig_full(ann.raster, ann._geometry["box"][0], box.T_cam_obj))
+    # and the other way round: the cylinder (not the first object in view) behind the box
+    T_cam_cyl[:3, 3] *= 1.6 / 0.6                              # 60 % farther than the box, on the same ray
+    scene.corrections.set(("object", "cylinder"), inv_T(T_cam_base) @ T_cam_cyl @ inv_T(T_base_cyl))
+    lab = ann.annotate(w)
+    names = [o.name for o in lab.objects if o.in_view]
+    cyl = lab.objects[scene.object_names.index("cylinder")]
+    assert names.index("cylinder") > 0 and cyl.mask_full.sum() > cyl.mask_visible.sum()
+    assert np.array_equal(cyl.mask_full, orig_full(ann.raster, ann._geometry["cylinder"][0], cyl.T_cam_obj))
 
 
 def test_objects_outside_the_view_are_culled(scene):
