@@ -76,6 +76,7 @@ import numpy as np
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.objects import ObjectModel
 from evpose.core.label import raster_kernels as _kern
+from evpose.core.label.mesh_closure import cull_sign
 
 __all__ = ["RasterResult", "Rasterizer", "warm_up"]
 
@@ -715,6 +716,14 @@ class Rasterizer:
             self._cache[key] = (ref, val)
         return val
 
+    def _cull_sign(self, V: np.ndarray, F: np.ndarray) -> int:
+        """Back-face culling sign of a mesh (:func:`~evpose.core.label.mesh_closure.cull_sign`), cached
+        per read-only face array (topology and coincident vertices do not change with a rigid pose);
+        0 (no culling) for writable face arrays, whose content may change between calls."""
+        if F.flags.writeable:
+            return 0
+        return self._cached(F, "cull", lambda a: cull_sign(V, a))
+
     def _faces_info(self, F: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Faces as a contiguous ``(3, F)`` intp array, with their min and max index."""
         def make(a):
@@ -799,7 +808,8 @@ class Rasterizer:
         for k, V, F in live:
             vs = self._vertex_stage(V, F, xy[voff:voff + len(V)], iz[voff:voff + len(V)])
             if vs is not None:
-                self._triangle_stage(vs, voff, int(bases[k]), groups, results, evaluate, want_depth)
+                front = None if vs.bad is not None else self._front_faces(xy[voff:voff + len(V)], vs.FT, V, F)
+                self._triangle_stage(vs, voff, int(bases[k]), groups, results, evaluate, want_depth, front)
             voff += len(V)
         t0 = time.perf_counter()
         for items in groups.values():
@@ -868,7 +878,7 @@ class Rasterizer:
             n_tile = _kern.raster_mesh(vs.FT, vs.rec.view(np.uint16), bad, vs.u, vs.v, xy, iz, self._ray, W, H,
                                        c_bend, eps, _BOX_OFF, np.uint64(bases[k]),
                                        _NO_ZBUF if zbuf is None else zbuf, _NO_MASK if masks is None else masks[k],
-                                       tile)
+                                       tile, np.float32(0 if vs.bad is not None else self._cull_sign(V, F)))
             t1 = time.perf_counter()
             self._acc("kernel", t1 - t0)
             if n_tile:
@@ -985,8 +995,21 @@ class Rasterizer:
         self._acc("vertices", time.perf_counter() - t0)
         return _VertexStage(V, FT, u, v, rec, None if all_good else ~good)
 
+    def _front_faces(self, xy: np.ndarray, FT: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray | None:
+        """Faces that are not culled as back faces of a closed mesh (bool per face), or None when the
+        mesh is not culled. Same float32 signed area as the compiled kernel (same sign decisions)."""
+        sign = self._cull_sign(V, F)
+        if not sign:
+            return None
+        x, y = xy.real, xy.imag
+        a, b, c = FT
+        x0, y0 = x.take(a), y.take(a)
+        area = (x.take(b) - x0) * (y.take(c) - y0)
+        area -= (y0 - y.take(b)) * (x0 - x.take(c))
+        return ~(area * np.float32(sign) > 0)
+
     def _triangle_stage(self, vs: _VertexStage, voff: int, base: int, groups: dict, results: list,
-                        evaluate, want_depth: bool) -> None:
+                        evaluate, want_depth: bool, front: np.ndarray | None = None) -> None:
         """Candidate pixels of the triangles of one mesh.
 
         Appends ``(vertex indices (3, n) offset by voff, candidate pixels (k, n), global ids
@@ -1006,6 +1029,8 @@ class Rasterizer:
             groups[k].append((idx, pix, t + base))
 
         M64, t_one, t_med = self._triangle_boxes(vs)
+        if front is not None:                 # back faces of a closed mesh (see mesh_closure)
+            t_one, t_med = t_one[front.take(t_one)], t_med[front.take(t_med)]
         t1 = time.perf_counter()
         self._acc("triangle boxes", t1 - t0)
         if len(t_one):

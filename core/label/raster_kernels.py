@@ -162,7 +162,7 @@ if HAVE_NUMBA:
         return n
 
     @njit(cache=True, nogil=True, error_model="numpy")
-    def raster_mesh(FT, lanes, bad, u, v, xy, iz, ray, W, H, c_bend, eps, off, gid0, zbuf, mask, tile_out):
+    def raster_mesh(FT, lanes, bad, u, v, xy, iz, ray, W, H, c_bend, eps, off, gid0, zbuf, mask, tile_out, cull):
         """Rasterise the fast-path triangles of one mesh.
 
         Parameters
@@ -197,6 +197,10 @@ if HAVE_NUMBA:
             pairs with ``1/z <= 0`` count, as in the numpy path. Both may be given (one pass).
         tile_out : (F,) intp
             Receives the faces that must take the tile path.
+        cull : float32
+            Back-face culling sign (:func:`evpose.core.label.mesh_closure.cull_sign`): faces whose
+            signed normalised-plane area ``A`` has ``cull * A > 0`` are skipped; 0 culls nothing.
+            Applied only when no face takes the tile path (every vertex beyond the near plane).
 
         Returns
         -------
@@ -204,6 +208,8 @@ if HAVE_NUMBA:
             Number of faces written to ``tile_out``.
         """
         n_tile = _tile_faces(FT, bad, tile_out)
+        if n_tile > 0:
+            cull = np.float32(0.0)
         depth_mode = len(zbuf) > 0
         mask_mode = len(mask) > 0
         one = np.float32(1.0)
@@ -232,6 +238,8 @@ if HAVE_NUMBA:
             c5 = x0 - xy[2 * c]
             area = c3 * c4
             area = area - c2 * c5
+            if area * cull > 0:                         # back face of a closed mesh: never the first hit
+                continue
             if area < 0:
                 c2, c3, c4, c5, area = -c2, -c3, -c4, -c5, -area
             elif not area > 0:                         # zero area (or NaN): covers nothing
