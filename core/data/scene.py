@@ -16,6 +16,7 @@ from evpose.core.data.clock import ClockModel
 from evpose.core.data.geometry import inv_T
 from evpose.core.data.manifest import SceneError, SceneManifest
 from evpose.core.data.manifest_reader import load_manifest
+from evpose.core.data.mesh_closure import cached_cull_sign
 from evpose.core.data.objects import ObjectModel, ObjectModelError, raster_friendly
 from evpose.core.data.trajectory import Trajectory, TrajectoryError
 from evpose.core.document.corrections import CORRECTIONS_FILENAME, Corrections
@@ -142,7 +143,9 @@ class Scene:
         identical to :meth:`model`'s, rendering is faster for coarse CAD meshes."""
         key = ("raster", name)
         if key not in self._models:
-            self._models[key] = raster_friendly(self.model(name))
+            model = raster_friendly(self.model(name))
+            cached_cull_sign(model.vertices_m, model.faces)      # paid here, not by the first frame
+            self._models[key] = model
         return self._models[key]
 
     @property

@@ -76,7 +76,7 @@ import numpy as np
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.objects import ObjectModel
 from evpose.core.label import raster_kernels as _kern
-from evpose.core.label.mesh_closure import cull_sign
+from evpose.core.data.mesh_closure import cached_cull_sign
 
 __all__ = ["RasterResult", "Rasterizer", "warm_up"]
 
@@ -716,13 +716,11 @@ class Rasterizer:
             self._cache[key] = (ref, val)
         return val
 
-    def _cull_sign(self, V: np.ndarray, F: np.ndarray) -> int:
-        """Back-face culling sign of a mesh (:func:`~evpose.core.label.mesh_closure.cull_sign`), cached
-        per read-only face array (topology and coincident vertices do not change with a rigid pose);
-        0 (no culling) for writable face arrays, whose content may change between calls."""
-        if F.flags.writeable:
-            return 0
-        return self._cached(F, "cull", lambda a: cull_sign(V, a))
+    @staticmethod
+    def _cull_sign(V: np.ndarray, F: np.ndarray) -> int:
+        """Back-face culling sign of a mesh (:func:`~evpose.core.data.mesh_closure.cached_cull_sign`):
+        0 (no culling) for writable face arrays."""
+        return cached_cull_sign(V, F)
 
     def _faces_info(self, F: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Faces as a contiguous ``(3, F)`` intp array, with their min and max index."""

@@ -198,7 +198,7 @@ if HAVE_NUMBA:
         tile_out : (F,) intp
             Receives the faces that must take the tile path.
         cull : float32
-            Back-face culling sign (:func:`evpose.core.label.mesh_closure.cull_sign`): faces whose
+            Back-face culling sign (:func:`evpose.core.data.mesh_closure.cull_sign`): faces whose
             signed normalised-plane area ``A`` has ``cull * A > 0`` are skipped; 0 culls nothing.
             Applied only when no face takes the tile path (every vertex beyond the near plane).
 

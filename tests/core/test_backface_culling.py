@@ -1,4 +1,4 @@
-"""Back-face culling of closed meshes (core/label/mesh_closure.py) changes no pixel.
+"""Back-face culling of closed meshes (core/data/mesh_closure.py) changes no pixel.
 
 The rasteriser skips back faces of meshes that :func:`cull_sign` proves closed and oriented, when every
 vertex lies beyond the near plane. These tests compare it with the same render without culling
@@ -16,7 +16,7 @@ import trimesh
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.geometry import T_from_rotvec, make_T
 from evpose.core.data.objects import ObjectModel, box_model, cylinder_model
-from evpose.core.label.mesh_closure import cull_sign
+from evpose.core.data.mesh_closure import cull_sign
 from evpose.core.label.raster import Rasterizer
 from tests.core.test_raster import MODELS
 
@@ -121,3 +121,22 @@ def test_mesh_across_the_near_plane_is_not_culled(raster):
     T = make_T(np.eye(3), -box.bbox_center_m)        # box centred on the camera
     n = assert_same_with_and_without(raster, [box], [T])
     assert n > 0.9 * raster.width * raster.height
+
+
+def test_scene_pays_the_closure_check_when_it_loads_a_model(tiny_scene_dir, monkeypatch):
+    """The first frame must not pay for cull_sign (20-70 ms per YCB mesh): Scene.raster_model computes
+    it, and renders reuse it (also from other rasterisers and for posed copies of the vertices)."""
+    from evpose.core.data import mesh_closure
+    from evpose.core.data.scene import Scene
+
+    calls = []
+    real = mesh_closure.cull_sign
+    monkeypatch.setattr(mesh_closure, "cull_sign", lambda V, F: calls.append(len(F)) or real(V, F))
+    scene = Scene.open(tiny_scene_dir)
+    models = [scene.raster_model(n) for n in scene.object_names]
+    assert len(calls) == len(models)
+    r = Rasterizer(CameraModel.davis346())
+    r.render_objects(models, random_poses(models, np.random.default_rng(0)))
+    Rasterizer(CameraModel.davis346()).full_masks(models, random_poses(models, np.random.default_rng(1)))
+    assert len(calls) == len(models)
+    assert mesh_closure.cached_cull_sign(models[0].vertices_m, np.array(models[0].faces)) == 0   # writable
