@@ -144,17 +144,22 @@ if HAVE_NUMBA:
         return n
 
     @njit(cache=True, nogil=True, error_model="numpy")
-    def _nonempty_faces(FT, lanes, bad, any_bad, off, out):
-        """Fast-path faces whose integer box holds a pixel centre, written to ``out`` without a branch
-        per face (most faces of dense meshes have none); returns their number."""
+    def _nonempty_faces(FT, lanes, bad, any_bad, off, out, xy, cull):
+        """Fast-path faces whose integer box holds a pixel centre and that are not back faces of a
+        closed mesh (``cull``, see :func:`raster_mesh`), written to ``out`` without a branch per face
+        (most faces of dense meshes have no pixel centre, half of a closed mesh faces away); returns
+        their number."""
         n = 0
         for t in range(FT.shape[1]):
             a, b, c = FT[0, t], FT[1, t], FT[2, t]
+            x0, y0 = xy[2 * a], xy[2 * a + 1]
+            area = (xy[2 * b] - x0) * (xy[2 * c + 1] - y0)
+            area = area - (y0 - xy[2 * b + 1]) * (x0 - xy[2 * c])
             lo_u = np.int64(min(lanes[4 * a], lanes[4 * b], lanes[4 * c]))
             lo_v = np.int64(min(lanes[4 * a + 1], lanes[4 * b + 1], lanes[4 * c + 1]))
             hi_u = 2 * off - np.int64(min(lanes[4 * a + 2], lanes[4 * b + 2], lanes[4 * c + 2]))
             hi_v = 2 * off - np.int64(min(lanes[4 * a + 3], lanes[4 * b + 3], lanes[4 * c + 3]))
-            keep = (hi_u >= lo_u) & (hi_v >= lo_v)
+            keep = (hi_u >= lo_u) & (hi_v >= lo_v) & (not area * cull > 0)
             if any_bad:
                 keep &= not (bad[a] | bad[b] | bad[c])
             out[n] = t
@@ -216,7 +221,7 @@ if HAVE_NUMBA:
         fbuf = np.empty(1, np.float32)
         ubuf = fbuf.view(np.uint32)
         cand = np.empty(FT.shape[1], np.int64)
-        n_cand = _nonempty_faces(FT, lanes, bad, n_tile > 0, off, cand)
+        n_cand = _nonempty_faces(FT, lanes, bad, n_tile > 0, off, cand, xy, cull)
         for i in range(n_cand):
             t = cand[i]
             a, b, c = FT[0, t], FT[1, t], FT[2, t]
