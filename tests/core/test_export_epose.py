@@ -463,3 +463,35 @@ def test_ground_truth_corrections_give_true_poses(tiny_scene_dir, tmp_path):
         for j, n in enumerate(scene.object_names):
             T = np.linalg.inv(T_bc) @ np.array(gt["objects"][n]["T_base_obj"])
             np.testing.assert_allclose(m["pose"][:, 4 * j:4 * j + 4], T, atol=1e-9)
+
+
+def test_masks_of_a_subset_of_objects(tiny_scene_dir, tmp_path):
+    """Exported labels number the exported objects (scene order) from 1; the other objects are background
+    (pins the worker's label table, evpose.core.export.epose): here the scene's first object is left out."""
+    from evpose.core.label.annotate import Annotator
+    from evpose.core.label.labels import Request
+    from evpose.core.label.windows import time_windows
+
+    names = Scene.open(tiny_scene_dir).object_names
+    assert len(names) >= 3
+    scene_dir, out, s = _limited_export(tiny_scene_dir, tmp_path, objects=names[1:])
+    assert s.written == 3
+    scene = Scene.open(scene_dir)
+    wins = {w.index: w for w in time_windows(scene.events, 10_000)}
+    ann = Annotator(scene, Request(keypoints=False, label_map=True))
+    n_labelled = 0
+    for mat in mats(out):
+        stem = mat.name[:4]
+        lm = ann.annotate(wins[int(stem)]).label_map
+        want = np.zeros(lm.shape, np.uint8)
+        for k in range(1, len(names)):
+            want[lm == k] = k                       # scene object k is exported object k (the first left out)
+        n_labelled += int((want > 0).sum())
+        assert np.array_equal(read_png(out / f"{stem}_mask_image_all.png"), want)
+        spike = read_png(out / f"{stem}_event_image.png")
+        assert np.array_equal(read_png(out / f"{stem}_segmented_image.png"), np.where(want > 0, spike, 0))
+        for k in range(1, len(names)):
+            assert np.array_equal(read_png(out / f"{stem}_mask_image_obj{k}.png"), (want == k) * np.uint8(255))
+            assert np.array_equal(read_png(out / f"{stem}_segmented_image_obj{k}.png"), np.where(want == k, spike, 0))
+    assert n_labelled > 0 and (lm == 0).any()
+    scene.close()

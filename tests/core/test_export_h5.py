@@ -15,6 +15,8 @@ from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 from evpose.core.label.windows import time_windows
 from evpose.core.label.event_frames.counts import polarity_counts
+from evpose.core.label.event_frames.display import three_channel_rgb
+from evpose.core.label.event_frames.three_channel import three_channel
 
 DATASETS = ("windows", "T_cam_obj", "T_base_cam", "bbox_obj", "bbox_visib", "keypoints_uv", "corners_cam",
             "center_uv", "visib_fract", "px_count_all", "px_count_visib", "label_map", "frames/counts",
@@ -82,6 +84,8 @@ def test_read_back(h5_export):
         ev = scene.events.read(wins[r].i0, wins[r].i1)
         pos, neg = polarity_counts(ev, W, H)
         assert np.array_equal(d["frames/counts"][r, 0], pos) and np.array_equal(d["frames/counts"][r, 1], neg)
+        rgb = three_channel_rgb(three_channel(ev, W, H, wins[r].t0_us, wins[r].t1_us))
+        assert np.array_equal(d["frames/three_channel"][r], rgb) and ((neg > 0) & (pos == 0)).any()
     assert d["frames/counts"].sum() == scene.events.n_events
     with h5py.File(path, "r") as f:
         assert f["label_map"].chunks == (1, H, W) and f["frames/counts"].chunks == (1, 2, H, W)
