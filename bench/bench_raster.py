@@ -5,8 +5,11 @@ Run ``python bench/bench_raster.py`` (``--json``: one JSON document of the headl
 
 * ``ours``: :class:`evpose.core.label.raster.Rasterizer` (``render_objects``: models and poses)
   with the numba kernels (``backend="numba"``, kernels warmed up first);
-* ``numpy``: the same class with ``backend="numpy"``: the vectorised numpy pipeline that was the
-  whole rasteriser before the kernels (unchanged code), the baseline of ``numpy/ours``;
+* ``numpy``: the rasteriser before issue 14, the baseline of ``numpy/ours``: the same class with
+  ``backend="numpy"`` (the vectorised numpy pipeline that was the whole rasteriser before the kernels)
+  on models whose face arrays are writable copies, which turns off the back-face culling of closed
+  meshes (``evpose.core.data.mesh_closure``) added since;
+* ``no cull``: the numba kernels with culling off (writable faces), to show what culling adds;
 * ``o3d cast``: open3d ``cast_rays`` with the BVH already built for the frame's poses (the
   build is not timed: the lower bound of DESIGN section 8, "build it once per pose set");
 * ``o3d build+cast``: the scene rebuilt for each frame's poses, then cast (what a per-frame
@@ -57,6 +60,13 @@ def load_models(names):
         mesh.vertices *= [1.0, 0.7 + 0.2 * i, 1.3]
         out.append(ObjectModel.from_trimesh(mesh, n))
     return out, "procedural stand-ins (assets absent)"
+
+
+def unculled(model: ObjectModel) -> ObjectModel:
+    """The same mesh with a writable copy of its faces: the rasteriser never culls those."""
+    m = ObjectModel(model.name, model.vertices_m, model.faces)
+    m.faces = np.array(m.faces)
+    return m
 
 
 def centred(model: ObjectModel, rotvec, t):
@@ -157,13 +167,17 @@ def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, basel
         t_ours.append(time.perf_counter() - t0)
         ours.append(res.obj_index)
     stages = {k: 1e3 * v / N_FRAMES for k, v in raster.timings.items()}
-    t_base, same = [], True
-    for i, meshes in enumerate(seq):                 # the numpy pipeline on the same frames
+    plain = [unculled(m) for m in all_models]
+    t_base, t_nocull, same = [], [], True
+    for i, meshes in enumerate(seq):                 # the numpy pipeline (no culling) on the same frames
         poses = [T for _, _, T in meshes]
         t0 = time.perf_counter()
-        res = baseline.render_objects(all_models, poses)
-        t_base.append(time.perf_counter() - t0)
-        same &= bool(np.array_equal(res.obj_index, ours[i]))
+        res = baseline.render_objects(plain, poses)
+        t1 = time.perf_counter()
+        res2 = raster.render_objects(plain, poses)
+        t_base.append(t1 - t0)
+        t_nocull.append(time.perf_counter() - t1)
+        same &= bool(np.array_equal(res.obj_index, ours[i])) and bool(np.array_equal(res2.obj_index, ours[i]))
     time.sleep(0.2)
     # open3d, scene rebuilt per frame (Embree builds the BVH lazily, in the first cast)
     t_build, t_cast, ious = [], [], np.ones((len(seq), n_obj))
@@ -189,6 +203,7 @@ def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, basel
     time.sleep(0.2)
     n_tri = sum(len(F) for _, F, _ in seq[0])
     return dict(label=label, tris=n_tri, ours=med(t_ours), numpy=med(t_base), numpy_min=1e3 * min(t_base[N_WARM:]),
+                nocull=med(t_nocull),
                 same_as_numpy=same, ours_min=1e3 * min(t_ours[N_WARM:]), cast=med(t_cast),
                 cast_min=1e3 * min(t_cast[N_WARM:]), build=med(t_build), objf=med(t_objf),
                 iou=ious[N_WARM:].min(axis=0), stages=stages)
@@ -262,10 +277,13 @@ def main() -> None:
     if as_json:
         print(json.dumps(dict(
             camera=f"DAVIS346 {camera.width}x{camera.height} with distortion", meshes=src, frames=N_FRAMES,
+            load_average=load,
             backend=raster.backend, setup_ms=1e3 * setup_s, warm_up_ms=1e3 * warm_s, first_frame_s=latency,
-            scenes=[dict(scene=r["label"], triangles=r["tris"], ours_ms=r["ours"], numpy_ms=r["numpy"],
-                         o3d_cast_ms=r["cast"], numpy_over_ours=r["numpy"] / r["ours"],
-                         ours_over_o3d_cast=r["ours"] / r["cast"], same_as_numpy=r["same_as_numpy"],
+            baseline="numpy pipeline without back-face culling (the rasteriser before issue 14)",
+            scenes=[dict(scene=r["label"], triangles=r["tris"], ours_ms=r["ours"], ours_min_ms=r["ours_min"],
+                         baseline_ms=r["numpy"], numba_no_cull_ms=r["nocull"],
+                         o3d_cast_ms=r["cast"], baseline_over_ours=r["numpy"] / r["ours"],
+                         ours_over_o3d_cast=r["ours"] / r["cast"], same_as_baseline=r["same_as_numpy"],
                          min_iou=[float(x) for x in r["iou"]], stages_ms=r["stages"]) for r in rows]), indent=1))
         return
     print(f"evpose raster benchmark: DAVIS346 {camera.width}x{camera.height} with distortion, {src}")
@@ -275,19 +293,21 @@ def main() -> None:
     print(f"backend {raster.backend}; kernels warmed up in {warm_s * 1e3:.0f} ms; first frame in a fresh process: "
           + ", ".join(f"{k} {v['first_frame'] * 1e3:.0f} ms (warm_up {v['warm_up'] * 1e3:.0f} ms)"
                       for k, v in latency.items()) + "\n")
-    head = (f"{'scene':41s} {'tris':>7s} {'ours':>6s} {'(min)':>6s} {'numpy':>6s} {'numpy/':>6s} {'o3d cast':>8s} {'(min)':>6s} {'o3d build':>9s} "
+    print("baseline 'before': the numpy pipeline without back-face culling (the rasteriser before issue 14); "
+          "'no cull': the numba kernels without culling\n")
+    head = (f"{'scene':41s} {'tris':>7s} {'ours':>6s} {'(min)':>6s} {'no cull':>7s} {'before':>6s} {'befor/':>6s} {'o3d cast':>8s} {'(min)':>6s} {'o3d build':>9s} "
             f"{'o3d obj':>8s} {'ours/':>6s} {'build+cast/':>11s}  IoU vs open3d per object")
-    sub = (f"{'':41s} {'':>7s} {'ms':>6s} {'ms':>6s} {'ms':>6s} {'ours':>6s} {'ms':>8s} {'ms':>6s} {'+cast ms':>9s} {'frame ms':>8s} "
+    sub = (f"{'':41s} {'':>7s} {'ms':>6s} {'ms':>6s} {'ms':>7s} {'ms':>6s} {'ours':>6s} {'ms':>8s} {'ms':>6s} {'+cast ms':>9s} {'frame ms':>8s} "
            f"{'cast':>6s} {'ours':>11s}  (min over frames)")
     print(head)
     print(sub)
     print("-" * len(head))
     for r in rows:
         iou = " ".join(f"{x:.4f}" for x in r["iou"])
-        print(f"{r['label']:41s} {r['tris']:7d} {r['ours']:6.2f} {r['ours_min']:6.2f} {r['numpy']:6.2f} "
+        print(f"{r['label']:41s} {r['tris']:7d} {r['ours']:6.2f} {r['ours_min']:6.2f} {r['nocull']:7.2f} {r['numpy']:6.2f} "
               f"{r['numpy'] / r['ours']:6.2f} {r['cast']:8.2f} "
               f"{r['cast_min']:6.2f} {r['build']:9.1f} {r['objf']:8.2f} {r['ours'] / r['cast']:6.2f} "
-              f"{r['build'] / r['ours']:11.1f}  {iou}" + ("" if r["same_as_numpy"] else "  MASKS DIFFER FROM NUMPY"))
+              f"{r['build'] / r['ours']:11.1f}  {iou}" + ("" if r["same_as_numpy"] else "  MASKS DIFFER FROM THE BASELINE"))
     print("\nwhere our time goes (ms per frame, mean):")
     for r in rows:
         st = r["stages"]
