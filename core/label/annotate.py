@@ -13,10 +13,11 @@ Work left out where the scene does not need it: objects whose 3D box is outside 
 culled before rasterising; all objects are rasterised once per window (one z-buffer gives every
 visible mask); a full mask is needed only for an object that another object actually hides
 somewhere: a visible pixel of another object whose ray lies inside the object's projected 3D box
-(otherwise full == visible, :mod:`evpose.core.label.visibility`). When the projected boxes of two
-objects in view overlap, the z-buffer's pass also stores every object's amodal mask
-(``Rasterizer.render_objects(want_amodal=True)``), so a hidden object costs no second render and a
-single-object scene or objects side by side pay nothing; rasterisers and per-object geometry are cached.
+(otherwise full == visible, :mod:`evpose.core.label.visibility`), so a single-object scene or objects
+side by side never render twice. ``Rasterizer.render_objects(want_amodal=True)`` (every object's amodal
+mask from the z-buffer's pass) was measured and is not used by default: on the 5-object real-mesh scene it
+made E-POSE exports slower (9.0 against 11.6 windows/s) although nothing was hidden; rasterisers and
+per-object geometry are cached.
 Windows whose label time falls outside the trajectory get no label, with the reason.
 """
 from __future__ import annotations
@@ -101,10 +102,9 @@ class Annotator:
         if not req.needs_raster:
             return labels
         visible = [k for k, lab in enumerate(labels.objects) if lab.in_view]
-        # amodal masks from the z-buffer's own pass when an object may hide another (their boxes overlap)
-        want_amodal = (req.amodal or req.masks_full) and any(
-            boxes_overlap(boxes[j], boxes[k]) for a, j in enumerate(visible) for k in visible[a + 1:])
-        label_map, counts, amodal = self._label_map(labels, visible, T_co, want_amodal)
+        # amodal masks from the z-buffer's pass only on request: with the real YCB meshes (tile path) that pass
+        # costs a full mask per object, more than rendering the few hidden ones (bench_export, ycb_5obj_5s)
+        label_map, counts, amodal = self._label_map(labels, visible, T_co, False)
         self._mask_labels(labels, visible, T_co, boxes, label_map, counts, amodal)
         if req.label_map:
             labels.label_map = label_map
