@@ -69,7 +69,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.events_worker = LatestWorker(events_fc.events_stages, "frame-events-worker", idle=events_fc.prefetch)
         self.events_worker.done.connect(self._events_ready)
         self.events_worker.failed.connect(self._worker_failed)
-        self.frame_worker = LatestWorker(FrameComputer(self.event_cache).overlay_stages, "frame-worker")
+        overlay_fc = FrameComputer(self.event_cache)       # idle: the next window's overlays, ahead of the user
+        self.frame_worker = LatestWorker(overlay_fc.overlay_stages, "frame-worker", idle=overlay_fc.prefetch_overlays)
         self.frame_worker.done.connect(self._frame_ready)
         self.frame_worker.failed.connect(self._worker_failed)
         self.spacetime_worker = LatestWorker(FrameComputer(self.event_cache).spacetime_stages, "spacetime-worker")

@@ -30,6 +30,7 @@ from evpose.core.label.overlay import (
     mask_contours,
     object_color,
 )
+from evpose.core.session.overlay_cache import OverlayCache, overlay_key
 from evpose.core.session.view_state import ViewState
 
 
@@ -82,6 +83,10 @@ class EventFrame:
     compute_ms: float = 0.0
 
 
+#: :meth:`FrameComputer.prefetch_overlays` follows steps of at most this many windows (stepping, playback);
+#: larger jumps (dragging the timeline) are not predicted.
+MAX_PREFETCH_STEP_WINDOWS = 4
+
 #: Silhouette contours kept by :meth:`FrameComputer.spacetime` (slices on a fixed time grid, keyed by
 #: their poses): a step of one window recomputes about one slice of twelve.
 TUBE_CACHE_SLICES = 96
@@ -106,6 +111,8 @@ class FrameComputer:
         self._last_events = None   # (store, t0, t1, representation) of the last event stage
         self._motion = None        # (store, t_us, direction, window_us) of the last request, for prefetch
         self._tubes: dict = {}     # (t_us, pose bytes) -> [(name, in_view, contours)]
+        self.overlays_ahead = OverlayCache()   # overlay results of prefetch_overlays
+        self._last_overlay = None  # (request, step_us) of the last overlay stage, for prefetch_overlays
 
     def _annotator_for(self, scene: Scene) -> Annotator:
         key = (id(scene.manifest),)
@@ -168,7 +175,20 @@ class FrameComputer:
 
         A generator yielding None after the rasterisation (a checkpoint) and returning a
         :class:`FrameData` without the event image (``image_rgb`` and ``counts`` are None: the event
-        stage provides them)."""
+        stage provides them). A result that :meth:`prefetch_overlays` computed ahead for exactly this
+        request (same scene, corrections, window and overlay settings) is returned at once."""
+        prev, step_us = self._last_overlay or (None, 0)
+        if prev is not None and prev.scene.events is req.scene.events and req.view.t_us != prev.view.t_us:
+            step_us = req.view.t_us - prev.view.t_us
+        self._last_overlay = (req, step_us)
+        ahead = self.overlays_ahead.get(overlay_key(req)) if len(self.overlays_ahead) else None
+        if ahead is not None:                  # computed ahead of the user: the same request's result
+            return ahead
+        data = yield from self._overlays(req)
+        return data
+
+    def _overlays(self, req: FrameRequest):
+        """The overlay stage's computation (a generator, see :meth:`overlay_stages`)."""
         t_start = time.perf_counter()
         scene, view = req.scene, req.view
         cam = scene.camera
@@ -203,6 +223,35 @@ class FrameComputer:
         scores = self._scores(scene, ev, labels)
         return FrameData(w, len(ev), None, None, labels, mask_rgba, overlays, inside, scores,
                          (time.perf_counter() - t_start) * 1e3)
+
+    def prefetch_overlays(self, should_stop=lambda: False) -> bool:
+        """Compute the overlays of the next window in the direction and step of the last two requests
+        (at most :data:`MAX_PREFETCH_STEP_WINDOWS` windows away) into :attr:`overlays_ahead`, for an idle
+        worker: ``should_stop()`` is checked between stages and the work abandoned when it turns True.
+        Returns True when a result was stored."""
+        if self._last_overlay is None:
+            return False
+        req, step_us = self._last_overlay
+        if step_us == 0 or abs(step_us) > MAX_PREFETCH_STEP_WINDOWS * req.view.window_us:
+            return False
+        t_next = req.view.t_us + step_us
+        store = req.scene.events
+        if store.t_first_us is None or not store.t_first_us <= t_next <= store.t_last_us:
+            return False
+        nxt = replace(req, view=replace(req.view, t_us=int(t_next)))
+        key = overlay_key(nxt)
+        if key in self.overlays_ahead:
+            return False
+        gen = self._overlays(nxt)
+        try:
+            while True:
+                if should_stop():
+                    gen.close()
+                    return False
+                next(gen)
+        except StopIteration as stop:
+            self.overlays_ahead.put(key, stop.value)
+            return True
 
     def prefetch(self, should_stop=None) -> int:
         """Decode the event blocks ahead of the last request in its direction of motion (both ways before
