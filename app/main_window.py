@@ -73,7 +73,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.frame_worker = LatestWorker(overlay_fc.overlay_stages, "frame-worker", idle=overlay_fc.prefetch_overlays)
         self.frame_worker.done.connect(self._frame_ready)
         self.frame_worker.failed.connect(self._worker_failed)
-        self.spacetime_worker = LatestWorker(FrameComputer(self.event_cache).spacetime_stages, "spacetime-worker")
+        spacetime_fc = FrameComputer(self.event_cache)      # idle: the silhouette slices of the next steps
+        self.spacetime_worker = LatestWorker(spacetime_fc.spacetime_stages, "spacetime-worker",
+                                             idle=spacetime_fc.prefetch_spacetime)
         self.spacetime_worker.done.connect(self._spacetime_ready)
         self.spacetime_worker.failed.connect(self._worker_failed)
         self._spacetime_timer = QtCore.QTimer(self, singleShot=True, interval=SPACETIME_DEBOUNCE_MS)

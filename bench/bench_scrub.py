@@ -268,7 +268,7 @@ def spacetime_updates(window, n: int) -> dict:
         ours.append((time.perf_counter() - t0) * 1e3)
         req = session.request()
         t0 = time.perf_counter()
-        naive._tubes.clear()                       # the baseline: every silhouette rasterised per update
+        naive.slice_cache.clear()                  # the baseline: every silhouette rasterised per update
         data = naive.spacetime(req)
         t1 = time.perf_counter()
         view.set_data(data)

@@ -1,9 +1,23 @@
-"""Benchmark of the space-time view: core's ``FrameComputer.spacetime`` on a span holding ~2 M events,
-and the widget's ``set_data`` -> rendered frame, each against a naive baseline.
+"""Benchmark of the space-time view: the update per step on the realistic scene against the code before
+issue 14's space-time work, then core's ``FrameComputer.spacetime`` on a span holding ~2 M events and the
+widget's ``set_data`` -> rendered frame, each against a naive baseline.
 
 Usage::
 
-    python bench/bench_spacetime.py [--events 2_000_000] [--repeats 5] [--size 900x650] [--skip-core]
+    python bench/bench_spacetime.py [--steps 12] [--rounds 3] [--baseline 08008e8] [--json]
+                                    [--events 2_000_000] [--repeats 5] [--size 900x650] [--skip-core] [--skip-ycb]
+
+``--json``: the report goes to stderr and one JSON document of the headline figures to stdout.
+
+Realistic scene (first table; ``bench/synth_scenes.py::ensure_ycb_scene``: 5 E-POSE objects with their real
+YCB meshes, 5 s, DAVIS346), default span 100 ms, 12 silhouette slices, budget 300k: the *update per step* of
+one window from the middle of the recording: the session steps, then core (``spacetime`` of the new request:
+event read, decimation, silhouette slices) -> ``SpaceTimeView.set_data`` -> ``canvas.render()``. Ours runs as the
+app does: between steps the space-time worker is idle and ``prefetch_spacetime`` computes the slices of the next
+steps (not timed, as in the app). The baseline is commit ``--baseline`` (08008e8: the slice cache by pose, the
+Markers-based point visual) checked out with ``git worktree`` and imported in a child process through a
+``PYTHONPATH`` folder; ours and the baseline run in alternating child processes (``--rounds`` each), each under
+Xvfb, and every figure carries the 1-minute load average of its run.
 
 Needs an X display with GLX (vispy cannot draw with QT_QPA_PLATFORM=offscreen). Without ``DISPLAY`` the
 script re-runs itself under ``xvfb-run -a -s "-screen 0 1600x1000x24 +extension GLX +render"``.
@@ -37,6 +51,7 @@ end to end: core + widget, ours (budget) vs naive (no budget, new ``Markers``).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import statistics
@@ -46,10 +61,19 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / ".data"
 SCENE = DATA / "spacetime_scene"
 XVFB = ["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24 +extension GLX +render"]
+BASELINE = "08008e8"
+TARGET_UPDATE_MS = 100.0
+LOG = sys.stdout
+
+
+def say(*a) -> None:
+    print(*a, file=LOG, flush=True)
 
 
 def _reexec_under_xvfb() -> None:
@@ -104,12 +128,12 @@ def ensure_scene(n_events: int):
         except Exception:  # noqa: BLE001 - a broken cache is rebuilt
             pass
     duration = max(0.5, n_events / 1.2e6 + 0.2)      # ~1.3 M events/s at 1 m/s on a DAVIS346 (seed 11)
-    print(f"generating {SCENE} ({duration:.1f} s of synthetic events, once) ...", flush=True)
+    say(f"generating {SCENE} ({duration:.1f} s of synthetic events, once) ...")
     t0 = time.perf_counter()
     DATA.mkdir(parents=True, exist_ok=True)
     generate(SCENE, SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=1.0,
                                 duration_s=duration, seed=11), overwrite=True)
-    print(f"  done in {time.perf_counter() - t0:.0f} s", flush=True)
+    say(f"  done in {time.perf_counter() - t0:.0f} s")
 
 
 def span_for(session, n_events: int) -> tuple[int, int]:
@@ -125,6 +149,126 @@ def span_for(session, n_events: int) -> tuple[int, int]:
     return tc, hi
 
 
+# ------------------------------------------------------------------------------------------------ realistic scene
+def ycb_child(steps: int) -> dict:
+    """Run in a child (whichever ``evpose`` PYTHONPATH gives): per-step update times on the realistic scene."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from PySide6 import QtWidgets
+    from synth_scenes import ensure_ycb_scene
+
+    import evpose
+    from evpose.core.session.frames import FrameComputer
+    from evpose.core.session.model import Session
+
+    qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
+    from evpose.widgets.spacetime_view import SpaceTimeView
+
+    session = Session.open(ensure_ycb_scene())
+    session.scene.trajectory            # the app's timeline loads it on the session's scene; requests share it
+    t0, t1 = session.time_range
+    session.set_time((t0 + t1) // 2)
+    fc = FrameComputer()
+    prefetch = getattr(fc, "prefetch_spacetime", None)
+    view = SpaceTimeView(session)
+    view.resize(900, 720)
+    view.show()
+    for _ in range(10):
+        qapp.processEvents()
+        time.sleep(0.01)
+    view.set_data(fc.spacetime(session.request()))       # warm: kernels, shaders, first slices
+    view.render_image()
+    core, widget, total, cpu = [], [], [], []
+    for _ in range(steps):
+        if prefetch is not None:
+            prefetch()                                   # the worker's idle time between requests (not timed)
+        session.step_windows(1)
+        c0, a = time.process_time(), time.perf_counter()
+        data = fc.spacetime(session.request())
+        b = time.perf_counter()
+        view.set_data(data)
+        view.render_image()
+        e = time.perf_counter()
+        core.append((b - a) * 1e3)
+        widget.append((e - b) * 1e3)
+        total.append((e - a) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    view.close()
+    return {"code": str(Path(evpose.__file__).resolve().parent), "core_ms": core, "widget_ms": widget,
+            "total_ms": total, "cpu_ms": cpu, "points": len(data.points),
+            "polylines": sum(len(p) for _, _, p in data.tubes), "span_us": int(session.view.spacetime_span_us),
+            "load_avg_1m": os.getloadavg()[0]}
+
+
+def run_child(steps: int, code_path: Path | None) -> dict:
+    env = dict(os.environ)
+    if code_path is not None:
+        env["PYTHONPATH"] = str(code_path) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    p = subprocess.run([sys.executable, __file__, "--ycb-child", str(steps)], env=env, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"child failed ({code_path or 'current'}):\n{p.stderr[-3000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def add_baseline(work: Path, rev: str) -> tuple[Path, str]:
+    """``rev`` checked out with ``git worktree`` under ``work``; the PYTHONPATH folder whose ``evpose`` links to
+    it and the commit's one-line description."""
+    tree = work / "baseline_tree"
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(tree), rev], check=True)
+    path = work / "baseline_path"
+    path.mkdir()
+    (path / "evpose").symlink_to(tree)
+    desc = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h %s", rev], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    return path, desc[:100]
+
+
+def summary(xs) -> dict:
+    a = np.asarray(xs, float)
+    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "min": float(a.min()), "n": len(a)}
+
+
+def ycb_rows(args) -> dict:
+    """Ours and the baseline in alternating child processes; the first table and its JSON part."""
+    import tempfile
+
+    work = Path(tempfile.mkdtemp(prefix="bench_spacetime_"))
+    base_path, desc = add_baseline(work, args.baseline)
+    runs = {"ours": [], "baseline": []}
+    try:
+        for r in range(args.rounds):
+            for name, path in (("ours", None), ("baseline", base_path)):
+                res = run_child(args.steps, path)
+                runs[name].append(res)
+                say(f"  round {r + 1} {name:<8}: update median {statistics.median(res['total_ms']):6.1f} ms "
+                    f"(core {statistics.median(res['core_ms']):5.1f}, view {statistics.median(res['widget_ms']):6.1f}),"
+                    f" load {res['load_avg_1m']:.2f}")
+    finally:
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(work / "baseline_tree")],
+                       check=False)
+        shutil.rmtree(work, ignore_errors=True)
+    out = {"scene": "ycb_5obj_5s", "baseline": desc, "span_us": runs["ours"][0]["span_us"],
+           "points": runs["ours"][0]["points"], "polylines": runs["ours"][0]["polylines"]}
+    for name, rs in runs.items():
+        out[name] = {k: summary([x for r in rs for x in r[k]]) for k in ("total_ms", "core_ms", "widget_ms", "cpu_ms")}
+        out[name]["load_avg_1m"] = [r["load_avg_1m"] for r in rs]
+    o, b = out["ours"], out["baseline"]
+    out["ratio_median"] = b["total_ms"]["median"] / o["total_ms"]["median"]
+    out["ratio_min"] = b["total_ms"]["min"] / o["total_ms"]["min"]
+    out["ratio_cpu_median"] = b["cpu_ms"]["median"] / o["cpu_ms"]["median"]
+    say(f"\nrealistic scene ycb_5obj_5s, span {out['span_us'] / 1e3:g} ms, {out['points']:,} points, "
+        f"{out['polylines']} silhouette polylines; update per step of one window (core -> set_data -> render)")
+    say(f"{'code':<10} {'update median':>14} {'p95':>7} {'min':>7} {'core med':>9} {'view med':>9} {'cpu med':>8}  load")
+    for name in ("ours", "baseline"):
+        x = out[name]
+        say(f"{name:<10} {x['total_ms']['median']:14.1f} {x['total_ms']['p95']:7.1f} {x['total_ms']['min']:7.1f} "
+            f"{x['core_ms']['median']:9.1f} {x['widget_ms']['median']:9.1f} {x['cpu_ms']['median']:8.1f}  "
+            f"{', '.join(f'{v:.1f}' for v in x['load_avg_1m'])}")
+    say(f"baseline = {desc}\nours / baseline: {out['ratio_median']:.2f}x faster (median), {out['ratio_min']:.2f}x (min), "
+        f"{out['ratio_cpu_median']:.2f}x less CPU; target <= {TARGET_UPDATE_MS:g} ms on a quiet machine: "
+        f"{'met' if o['total_ms']['median'] <= TARGET_UPDATE_MS else 'missed'} here")
+    return out
+
+
 # ------------------------------------------------------------------------------------------------ main
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -132,8 +276,30 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--size", default="900x650", help="canvas size WxH in pixels")
     ap.add_argument("--skip-core", action="store_true", help="synthesise the widget's data instead of the scene")
+    ap.add_argument("--steps", type=int, default=12, help="steps per child run on the realistic scene")
+    ap.add_argument("--rounds", type=int, default=3, help="child runs of ours and of the baseline, alternating")
+    ap.add_argument("--baseline", default=BASELINE, help="git revision of the baseline code")
+    ap.add_argument("--skip-ycb", action="store_true", help="skip the realistic-scene table")
+    ap.add_argument("--skip-2m", action="store_true", help="skip the 2 M-event tables")
+    ap.add_argument("--json", action="store_true", help="report on stderr, one JSON document on stdout")
+    ap.add_argument("--ycb-child", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     _reexec_under_xvfb()
+    if args.ycb_child:
+        print(json.dumps(ycb_child(args.ycb_child)))
+        return 0
+    global LOG
+    if args.json:
+        LOG = sys.stderr
+    headline = {"benchmark": "spacetime", "target_update_ms": TARGET_UPDATE_MS}
+    if not args.skip_ycb:
+        say(f"realistic scene: {args.rounds} rounds of {args.steps} steps, ours and baseline {args.baseline} "
+            "alternating ...")
+        headline["ycb"] = ycb_rows(args)
+    if args.skip_2m:
+        if args.json:
+            print(json.dumps(headline))
+        return 0
     sys.path.insert(0, str(ROOT))
     import numpy as np
     from PySide6 import QtWidgets
@@ -186,8 +352,8 @@ def main(argv=None) -> int:
         session.set_view_option(spacetime_budget=budget0)
         t_sil, t_ours, t_naive = (Timing(statistics.median(x.wall for x in samples[k]),
                                          statistics.median(x.cpu for x in samples[k])) for k in variants)
-        print(f"scene {SCENE.name}: span {span / 1e3:.1f} ms around t = {tc} µs holds {n_total:,} events; "
-              f"{sum(len(p) for _, _, p in data_budget.tubes)} silhouette polylines", flush=True)
+        say(f"scene {SCENE.name}: span {span / 1e3:.1f} ms around t = {tc} µs holds {n_total:,} events; "
+              f"{sum(len(p) for _, _, p in data_budget.tubes)} silhouette polylines")
         rows += [("core", "window read (lower bound)", t_read, None),
                  ("core", f"silhouettes only ({v.spacetime_slices} slices, 1 event)", t_sil, None),
                  ("core", f"spacetime, budget {v.spacetime_budget // 1000}k", t_ours, t_naive),
@@ -237,7 +403,7 @@ def main(argv=None) -> int:
 
     budget0 = session.view.spacetime_budget
     view = make_view()
-    print(f"canvas {view.canvas.size}, lean upload: {view.markers.lean}, GL: {_gl_renderer(view)}", flush=True)
+    say(f"canvas {view.canvas.size}, lean upload: {view.markers.lean}, GL: {_gl_renderer(view)}")
     holder = [None]
     set_and_render(view, [fresh(data_full)])                      # warm: shaders compiled, buffers allocated
     prep_median()
@@ -338,19 +504,25 @@ def main(argv=None) -> int:
         rows += [("end-to-end", "core budget + ours", t_ours + t_w_budget, t_naive + t_w_naive),
                  ("end-to-end", "core no budget + naive Markers", t_naive + t_w_naive, t_naive + t_w_naive)]
 
-    print()
-    print(f"{'section':<11} {'what':<48} {'prep ms':>8} {'wall ms':>9} {'cpu ms':>9} {'vs baseline':>12}")
-    print("-" * 102)
+    say()
+    say(f"{'section':<11} {'what':<48} {'prep ms':>8} {'wall ms':>9} {'cpu ms':>9} {'vs baseline':>12}")
+    say("-" * 102)
     for sec, name, t, base, *pr in rows:
         ratio = f"{base.cpu / t.cpu:10.1f}x" if base else f"{'':>11}"
         prep_s = f"{pr[0]:8.1f}" if pr else f"{'':>8}"
-        print(f"{sec:<11} {name:<48} {prep_s} {t.wall:9.1f} {t.cpu:9.1f} {ratio:>12}")
-    print("\nwall / cpu = set_data (or the naive rebuild) through canvas.render(), i.e. upload + draw + readback, "
+        say(f"{sec:<11} {name:<48} {prep_s} {t.wall:9.1f} {t.cpu:9.1f} {ratio:>12}")
+    say("\nwall / cpu = set_data (or the naive rebuild) through canvas.render(), i.e. upload + draw + readback, "
           "as wall-clock and as process CPU time (llvmpipe's threads included); prep = the python-side wall "
           "share before the draw.\n'vs baseline' = baseline cpu / this cpu (higher is faster): core rows vs "
           "'no budget', widget upload rows vs 'new Markers per update', time scale vs its naive rebuild, 300k "
           "redraw vs 2 M redraw, dragging vs the 300k redraw.")
     session.close()
+    if not args.skip_core:
+        headline["events_2m"] = {"scene": SCENE.name, "end_to_end_ms": (t_ours + t_w_budget).wall,
+                                 "end_to_end_cpu_ms": (t_ours + t_w_budget).cpu,
+                                 "naive_ms": (t_naive + t_w_naive).wall, "load_avg_1m": os.getloadavg()[0]}
+    if args.json:
+        print(json.dumps(headline))
     return 0
 
 

@@ -1,11 +1,11 @@
-"""The event cloud's vispy visual: a ``Markers`` subclass whose vertex shader takes the polarity as one
-float and mixes the ON / OFF colours from uniforms.
+"""The event cloud's vispy visual: GL points with their own small shaders, the polarity as one float
+mixing the ON / OFF colours from uniforms.
 
-A point then costs 16 bytes on the GPU (a float32 (x, y, t) position and a float32 polarity, two
-separately updated vertex buffers) instead of the 56 bytes of ``Markers.set_data``'s interleaved
-record; size, edge and symbol are constant attributes. If vispy's marker shader ever stops matching
-the two lines this patches, the class falls back to vispy's own shader and ``Markers.set_data``
-(``lean`` is then False).
+A point costs 16 bytes on the GPU (a float32 (x, y, t) position and a float32 polarity, two separately
+updated vertex buffers) instead of the 56 bytes of ``Markers.set_data``'s interleaved record, and its
+fragments run a disc test and a colour instead of ``Markers``' symbol, edge, antialiasing and lighting
+code: the same pixels (a 2 px disc with no edge and no antialiasing, the same transforms) drawn several
+times faster by software OpenGL. ``lean=False`` gives vispy's stock ``Markers`` (for comparisons).
 
 vispy is imported lazily (:func:`use_vispy`): importing this module needs no display.
 """
@@ -26,43 +26,74 @@ def use_vispy() -> None:
         pass
 
 
-def _lean_vertex_shader(src: str) -> str | None:
-    """Markers' vertex shader with the per-point face colour replaced by a polarity in [0, 1] and two
-    uniform colours; None when vispy's shader no longer has the expected lines (then the widget falls
-    back to ``Markers.set_data``)."""
-    decl, assign = "attribute vec4 a_bg_color;", "v_bg_color  = a_bg_color;"
-    if decl not in src or assign not in src:
-        return None
-    src = src.replace(decl, "attribute float a_polarity;\nuniform vec4 u_on_color;\nuniform vec4 u_off_color;")
-    return src.replace(assign, "v_bg_color = mix(u_off_color, u_on_color, a_polarity);")
+#: The event points' shaders: a GL point of ``u_size`` framebuffer pixels (a disc, as ``Markers``' "disc" with no
+#: edge and no antialiasing draws it), coloured by mixing the OFF and ON colours with the polarity. Positions go
+#: through the same two transforms as ``Markers`` (visual -> framebuffer -> render), so the points land on the same
+#: pixels; the fragment work is one length and one compare instead of ``Markers``' symbol, edge, antialiasing and
+#: lighting code, which on software OpenGL (llvmpipe) cost about 4 µs a point.
+POINTS_VERTEX_SHADER = """
+attribute vec3 a_position;
+attribute float a_polarity;
+uniform vec4 u_on_color;
+uniform vec4 u_off_color;
+uniform float u_size;
+varying vec4 v_color;
+void main() {
+    vec4 fb_pos = $visual_to_framebuffer(vec4(a_position, 1.0));
+    gl_Position = $framebuffer_to_render(fb_pos);
+    gl_PointSize = u_size;
+    v_color = mix(u_off_color, u_on_color, a_polarity);
+}
+"""
+POINTS_FRAGMENT_SHADER = """
+uniform float u_size;
+varying vec4 v_color;
+void main() {
+    if (length((gl_PointCoord - vec2(0.5, 0.5)) * u_size) > 0.5 * u_size)
+        discard;
+    gl_FragColor = v_color;
+}
+"""
 
 
 def _make_event_cloud_class(lean: bool):
-    """Build the ``Markers`` subclass (needs vispy, hence a factory); ``lean=False`` keeps vispy's shader
-    and ``Markers.set_data`` (the fallback, also used by the benchmark for comparison)."""
+    """Build the event cloud's visual class (needs vispy, hence a factory): ``lean=True`` the 16-byte-per-point
+    :class:`EventPointsVisual` with its own shaders; ``lean=False`` vispy's ``Markers`` and its
+    ``set_data`` (the benchmark's comparison)."""
     from vispy.gloo import VertexBuffer
     from vispy.scene.visuals import create_visual_node
+    from vispy.visuals import Visual
     from vispy.visuals.markers import MarkersVisual
 
-    lean_vs = _lean_vertex_shader(MarkersVisual._shaders["vertex"]) if lean else None
+    if not lean:
+        class StockMarkersVisual(MarkersVisual):
+            """vispy's ``Markers`` (56 bytes a point, per-point colours through ``set_data``)."""
 
-    class EventCloudVisual(MarkersVisual):
-        """``Markers`` for events: positions (N, 3) float32 and polarity (N,) float32 as two separately
-        updated vertex buffers, colour from uniforms. Falls back to ``Markers.set_data`` when vispy's
-        shader changed (``lean`` is then False)."""
+            lean = False
 
-        lean = lean_vs is not None
-        if lean:
-            _shaders = {"vertex": lean_vs, "fragment": MarkersVisual._shaders["fragment"]}
+            def set_events(self, *a, **k):
+                raise RuntimeError("lean upload unavailable; use set_data")
 
-        def __init__(self, **kwargs):
-            super().__init__(**kwargs)
-            self.unfreeze()
+        return create_visual_node(StockMarkersVisual)
+
+    class EventPointsVisual(Visual):
+        """Events as GL points: positions (N, 3) float32 and polarity (N,) float32 in two separately
+        updated vertex buffers, colours and size from uniforms (see :data:`POINTS_VERTEX_SHADER`).
+
+        ``_index_buffer`` (a ``Visual`` attribute) may be set to draw a subset (the coarse prefix)."""
+
+        lean = True
+
+        def __init__(self, scaling="fixed", antialias=0.0, **kwargs):
+            del scaling, antialias          # always screen-sized, never antialiased (see the shaders)
             self._pos_vbo = VertexBuffer(np.zeros((1, 3), np.float32))
             self._pol_vbo = VertexBuffer(np.zeros(1, np.float32))
-            self.freeze()
-            if self.lean:
-                self.set_colors(ON_RGBA, OFF_RGBA)
+            self._n = 0
+            self._size_px = 1.0
+            self._pos = None                # the uploaded positions (for the bounds, computed on demand)
+            Visual.__init__(self, vcode=POINTS_VERTEX_SHADER, fcode=POINTS_FRAGMENT_SHADER, **kwargs)
+            self._draw_mode = "points"
+            self.set_colors(ON_RGBA, OFF_RGBA)
 
         def set_colors(self, on_rgba, off_rgba) -> None:
             self.shared_program["u_on_color"] = tuple(float(c) for c in on_rgba)
@@ -71,36 +102,48 @@ def _make_event_cloud_class(lean: bool):
 
         def set_events(self, pos: np.ndarray | None, polarity: np.ndarray | None, size: float) -> None:
             """Upload what is given: ``pos`` (N, 3) float32 and/or ``polarity`` (N,) float32 in {0, 1};
-            None keeps that buffer. Both must end up with the same length."""
-            if not self.lean:
-                raise RuntimeError("lean upload unavailable; use set_data")
+            None keeps that buffer. Both must end up with the same length. ``size``: point diameter in
+            logical pixels."""
             p = self.shared_program
             if pos is not None:
-                if len(pos) == 0:
-                    self._data = None       # Markers' "nothing to draw" (and no bounds)
+                self._n = len(pos)
+                self._pos = pos if self._n else None
+                if self._n == 0:
                     self.update()
                     return
                 self._pos_vbo.set_data(pos)
                 p["a_position"] = self._pos_vbo
-                self._data = {"a_position": pos}   # what Markers reads for bounds / the draw check
             if polarity is not None:
                 self._pol_vbo.set_data(polarity)
                 p["a_polarity"] = self._pol_vbo
-            p["a_fg_color"] = (0.0, 0.0, 0.0, 0.0)
-            p["a_size"] = float(size)
-            p["a_edgewidth"] = 0.0
-            p["a_symbol"] = float(self._symbol_shader_values["disc"])
+            self._size_px = float(size)
             self.update()
 
-    return create_visual_node(EventCloudVisual)
+        def _prepare_transforms(self, view) -> None:
+            vert = view.view_program.vert
+            vert["visual_to_framebuffer"] = view.get_transform("visual", "framebuffer")
+            vert["framebuffer_to_render"] = view.get_transform("framebuffer", "render")
+
+        def _prepare_draw(self, view) -> bool:
+            if self._n == 0:
+                return False
+            view.view_program["u_size"] = self._size_px * view.transforms.pixel_scale
+            return True
+
+        def _compute_bounds(self, axis, view):
+            if self._pos is None:
+                return None
+            return (float(self._pos[:, axis].min()), float(self._pos[:, axis].max()))
+
+    return create_visual_node(EventPointsVisual)
 
 
 _EVENT_CLOUD: dict = {}
 
 
 def event_cloud_node_class(lean: bool = True):
-    """The scene-node class of the event cloud (a ``Markers`` subclass); ``.lean`` tells whether the
-    16-byte-per-point upload is in use (False if vispy's marker shader no longer matches)."""
+    """The scene-node class of the event cloud: the lean points (``lean``, 16 bytes a point, see
+    :data:`POINTS_VERTEX_SHADER`) or vispy's stock ``Markers``; ``.lean`` tells which."""
     if lean not in _EVENT_CLOUD:
         use_vispy()
         _EVENT_CLOUD[lean] = _make_event_cloud_class(lean)

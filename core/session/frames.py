@@ -31,6 +31,7 @@ from evpose.core.label.overlay import (
     object_color,
 )
 from evpose.core.session.overlay_cache import OverlayCache, overlay_key
+from evpose.core.session.spacetime_slices import SLICE_REQUEST, SliceCache, slice_key, slice_times
 from evpose.core.session.view_state import ViewState
 
 
@@ -87,9 +88,8 @@ class EventFrame:
 #: larger jumps (dragging the timeline) are not predicted.
 MAX_PREFETCH_STEP_WINDOWS = 4
 
-#: Silhouette contours kept by :meth:`FrameComputer.spacetime` (slices on a fixed time grid, keyed by
-#: their poses): a step of one window recomputes about one slice of twelve.
-TUBE_CACHE_SLICES = 96
+#: :meth:`FrameComputer.prefetch_spacetime` computes the slices of the span this many windows ahead.
+SPACETIME_PREFETCH_WINDOWS = 2
 
 
 class FrameComputer:
@@ -110,7 +110,11 @@ class FrameComputer:
         self._score_params = None
         self._last_events = None   # (store, t0, t1, representation) of the last event stage
         self._motion = None        # (store, t_us, direction, window_us) of the last request, for prefetch
-        self._tubes: dict = {}     # (t_us, pose bytes) -> [(name, in_view, contours)]
+        #: silhouette slices of the space-time view by time and poses (byte-bounded: ``slice_cache.nbytes``)
+        self.slice_cache = SliceCache()
+        self._slice_annotator: Annotator | None = None
+        self._slice_scene_key = None
+        self._last_spacetime = None   # the last space-time request, for prefetch_spacetime
         self.overlays_ahead = OverlayCache()   # overlay results of prefetch_overlays
         self._last_overlay = None  # (request, step_us) of the last overlay stage, for prefetch_overlays
 
@@ -120,7 +124,6 @@ class FrameComputer:
             self._annotator = Annotator(scene, Request(keypoints=True, masks_visible=True, label_map=True, depth=True,
                                                                amodal=False))   # views show visible masks only
             self._key = key
-            self._tubes.clear()
         self._annotator.scene = scene
         return self._annotator
 
@@ -283,14 +286,26 @@ class FrameComputer:
         """The space-time data at once (:meth:`spacetime_stages` run to its end)."""
         return run_stages(self.spacetime_stages(req))
 
+    def _slices_annotator(self, scene: Scene) -> Annotator:
+        """The annotator of the silhouette slices (label map only, :data:`SLICE_REQUEST`), for ``scene``."""
+        key = (id(scene.manifest),)
+        if self._slice_annotator is None or self._slice_scene_key != key:
+            self._slice_annotator = Annotator(scene, SLICE_REQUEST)
+            self._slice_scene_key = key
+            self.slice_cache.clear()
+        self._slice_annotator.scene = scene
+        return self._slice_annotator
+
     def spacetime_stages(self, req: FrameRequest):
         """The space-time data as a generator of checkpoints (yields None after the event read and after
         each silhouette slice, so a worker drops a superseded request early) returning :class:`SpaceTimeData`.
 
         Silhouette slices sit on a fixed grid of ``span / slices`` from the window grid's origin (so a step
         of the current time reuses the slices it still covers) and are cached by their poses: a pose or
-        clock change recomputes them, a step recomputes only the new ones.
+        clock change recomputes them, a step recomputes only the new ones (see :attr:`slice_cache` and
+        :meth:`prefetch_spacetime`).
         """
+        self._last_spacetime = req
         scene, view = req.scene, req.view
         span = int(view.spacetime_span_us)
         t0 = int(view.t_us - span // 2)
@@ -307,13 +322,13 @@ class FrameComputer:
         pts[:, 2] = (ev.t - view.t_us).astype(np.float32) * 1e-3
         tubes = []
         times = slice_times(t0, span, view.spacetime_slices, view.grid_origin_us)
-        ann = self._annotator_for(scene)
+        ann = self._slices_annotator(scene)
         T_co, T_bc, valid = ann.poses(times)
         per_obj: dict[str, list[np.ndarray]] = {name: [] for name in scene.object_names}
         for i, t in enumerate(times):
             if not valid[i]:
                 continue
-            for name, in_view, contours in self._slice_contours(ann, int(t), T_co[i], T_bc[i]):
+            for name, in_view, contours in self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i]):
                 if name in view.hidden or not in_view:
                     continue
                 for c in contours:
@@ -327,18 +342,34 @@ class FrameComputer:
                 tubes.append((name, object_color(k), per_obj[name]))
         return SpaceTimeData(int(view.t_us), pts, ev.p.copy(), n, tubes, span)
 
-    def _slice_contours(self, ann: Annotator, t_us: int, T_co: np.ndarray, T_bc: np.ndarray) -> list:
-        """``[(name, in_view, contours)]`` of the objects at ``t_us`` with these poses, cached."""
-        key = (t_us, T_co.tobytes(), T_bc.tobytes())
-        hit = self._tubes.get(key)
-        if hit is not None:
-            return hit
-        lab = ann.annotate(Window(-1, t_us, t_us + 1, t_us), pose=(T_co, T_bc, True))
-        out = [(o.name, bool(o.in_view), mask_contours(o.mask_visible) if o.in_view else []) for o in lab.objects]
-        if len(self._tubes) >= TUBE_CACHE_SLICES:
-            self._tubes.pop(next(iter(self._tubes)))
-        self._tubes[key] = out
-        return out
+    def prefetch_spacetime(self, should_stop=lambda: False) -> int:
+        """Compute into :attr:`slice_cache` the silhouette slices that the span of the last space-time request
+        will need after up to :data:`SPACETIME_PREFETCH_WINDOWS` steps of one window in its direction of motion
+        (both ways before any motion), for an idle worker: ``should_stop()`` is checked before every slice.
+        Returns the slices computed."""
+        req = self._last_spacetime
+        if req is None or self._motion is None or self._motion[0] is not req.scene.events:
+            return 0
+        scene, view = req.scene, req.view
+        span, w = int(view.spacetime_span_us), int(view.window_us)
+        direction = self._motion[2]
+        ahead = [d * k * w for k in range(1, SPACETIME_PREFETCH_WINDOWS + 1) for d in ((direction,) if direction
+                                                                                       else (1, -1))]
+        t0 = int(view.t_us - span // 2)
+        times = np.unique(np.concatenate([slice_times(t0 + a, span, view.spacetime_slices, view.grid_origin_us)
+                                          for a in ahead]))
+        if direction < 0:
+            times = times[::-1]                  # the nearest first
+        ann = self._slices_annotator(scene)
+        T_co, T_bc, valid = ann.poses(times)
+        n = 0
+        for i, t in enumerate(times):
+            if should_stop():
+                break
+            if valid[i] and slice_key(int(t), T_co[i]) not in self.slice_cache:
+                self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])
+                n += 1
+        return n
 
 
 def run_stages(gen):
@@ -348,15 +379,6 @@ def run_stages(gen):
             next(gen)
     except StopIteration as stop:
         return stop.value
-
-
-def slice_times(t0_us: int, span_us: int, n_slices: int, origin_us: int = 0) -> np.ndarray:
-    """Times of the silhouette slices in ``[t0_us, t0_us + span_us)``, µs: the multiples of
-    ``span_us / n_slices`` (at least 1 µs) counted from ``origin_us``, so they stay put while the span moves."""
-    step = max(int(span_us) // max(int(n_slices), 2), 1)
-    k0 = -(-(int(t0_us) - int(origin_us)) // step)
-    times = int(origin_us) + step * np.arange(k0, k0 + max(int(n_slices), 2) + 1, dtype=np.int64)
-    return times[times < int(t0_us) + int(span_us)]
 
 
 def inside_fraction(ev: EventArray, label_map: np.ndarray, dilate_px: int = 2) -> float | None:
