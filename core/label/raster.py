@@ -486,6 +486,7 @@ class _VertexStage(NamedTuple):
     v: np.ndarray            #: (N,) distorted pixel row
     rec: np.ndarray          #: (N,) uint64 packed integer boxes
     bad: np.ndarray | None   #: (N,) bool, vertex outside the fast path (None: all fine)
+    xy: np.ndarray | None = None   #: (N,) complex64 normalised ``x/z + i y/z`` (numpy path)
 
 
 class Rasterizer:
@@ -542,6 +543,12 @@ class Rasterizer:
         else:
             self._frustum = (0.0, 0.0, 0.0, 0.0)
             r_valid = 1.0
+        #: float32 box of the valid rays widened by 1e-4 (~0.03 px): a triangle in front of the near plane
+        #: whose normalised bounding box misses it covers no pixel (tile-path faces are dropped by it)
+        fx32, fy32 = X[np.isfinite(X)], Y[np.isfinite(Y)]
+        m = 1e-4
+        self._fbox32 = (np.array([fx32.min() - m, fx32.max() + m, fy32.min() - m, fy32.max() + m], dtype=np.float32)
+                        if len(fx32) else np.zeros(4, dtype=np.float32))
         self._distort = _distort_fn(camera)
         self._distort32 = _distort32_fn(camera, self._distort)
         self._setup_disc(r_valid)
@@ -716,6 +723,14 @@ class Rasterizer:
             self._cache[key] = (ref, val)
         return val
 
+    def _all_front(self, vs: _VertexStage, zv: np.ndarray | None = None) -> bool:
+        """Every vertex beyond the near plane (float32, as the vertex stage decides): then the camera is
+        outside the mesh's convex hull and nothing is clipped, so back faces of a closed mesh can be culled."""
+        if vs.bad is None:
+            return True
+        zv = np.asarray(vs.V[:, 2], dtype=np.float32) if zv is None else zv
+        return bool(zv.min() > np.float32(self.near_m))
+
     @staticmethod
     def _cull_sign(V: np.ndarray, F: np.ndarray) -> int:
         """Back-face culling sign of a mesh (:func:`~evpose.core.data.mesh_closure.cached_cull_sign`):
@@ -806,7 +821,7 @@ class Rasterizer:
         for k, V, F in live:
             vs = self._vertex_stage(V, F, xy[voff:voff + len(V)], iz[voff:voff + len(V)])
             if vs is not None:
-                front = None if vs.bad is not None else self._front_faces(xy[voff:voff + len(V)], vs.FT, V, F)
+                front = self._front_faces(xy[voff:voff + len(V)], vs.FT, V, F) if self._all_front(vs) else None
                 self._triangle_stage(vs, voff, int(bases[k]), groups, results, evaluate, want_depth, front)
             voff += len(V)
         t0 = time.perf_counter()
@@ -873,10 +888,13 @@ class Rasterizer:
             t0 = time.perf_counter()
             tile = np.empty(vs.FT.shape[1], dtype=np.intp)
             bad = vs.bad if vs.bad is not None else np.zeros(len(vs.u), dtype=bool)
+            zv = np.ascontiguousarray(vs.V[:, 2], dtype=np.float32)
+            near = np.float32(self.near_m)
             n_tile = _kern.raster_mesh(vs.FT, vs.rec.view(np.uint16), bad, vs.u, vs.v, xy, iz, self._ray, W, H,
                                        c_bend, eps, _BOX_OFF, np.uint64(bases[k]),
                                        _NO_ZBUF if zbuf is None else zbuf, _NO_MASK if masks is None else masks[k],
-                                       tile, np.float32(0 if vs.bad is not None else self._cull_sign(V, F)))
+                                       tile, np.float32(self._cull_sign(V, F) if self._all_front(vs, zv) else 0),
+                                       zv, near, self._fbox32)
             t1 = time.perf_counter()
             self._acc("kernel", t1 - t0)
             if n_tile:
@@ -991,7 +1009,7 @@ class Rasterizer:
                 A[~good] = 0.0
             rec = A.astype(np.uint16).view(np.uint64).ravel()
         self._acc("vertices", time.perf_counter() - t0)
-        return _VertexStage(V, FT, u, v, rec, None if all_good else ~good)
+        return _VertexStage(V, FT, u, v, rec, None if all_good else ~good, xy_out)
 
     def _front_faces(self, xy: np.ndarray, FT: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray | None:
         """Faces that are not culled as back faces of a closed mesh (bool per face), or None when the
@@ -1092,9 +1110,22 @@ class Rasterizer:
         (their covered pairs go to ``results``); returns the others."""
         tb = vs.bad.take(vs.FT.take(t_med, axis=1)).any(axis=0)
         if tb.any():
-            self._tile_path(vs.V, vs.FT, t_med[tb], base, want_depth, results)
+            t_tile = t_med[tb]
+            self._tile_path(vs.V, vs.FT, t_tile[self._tile_keep(vs, t_tile)], base, want_depth, results)
             t_med = t_med[~tb]
         return t_med
+
+    def _tile_keep(self, vs: _VertexStage, t: np.ndarray) -> np.ndarray:
+        """Which tile-path faces ``t`` need the tile path: those with a vertex at or behind the near plane
+        (clipping), and those in front of it whose normalised bounding box meets the box of the valid rays
+        (float32, the same test as the compiled kernel's ``tile_keep``; back faces are already culled)."""
+        idx = vs.FT.take(t, axis=1)
+        z = vs.V[:, 2].astype(np.float32).take(idx)
+        clip = (z <= np.float32(self.near_m)).any(axis=0)
+        x, y = vs.xy.real.take(idx), vs.xy.imag.take(idx)
+        xmin, xmax, ymin, ymax = self._fbox32
+        miss = (x.max(axis=0) < xmin) | (x.min(axis=0) > xmax) | (y.max(axis=0) < ymin) | (y.min(axis=0) > ymax)
+        return clip | ~miss
 
     def _small_box_candidates(self, M64: np.ndarray, t_med: np.ndarray, add) -> np.ndarray:
         """Boxes of 2 or 2 x 2 pixels inside the image: their integer boxes are exact, so their pixels are

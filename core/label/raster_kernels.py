@@ -32,7 +32,7 @@ try:
 except ImportError:                                  # pragma: no cover - numba is a dependency
     HAVE_NUMBA = False
 
-__all__ = ["HAVE_NUMBA", "vertex_stage", "raster_mesh", "zbuf_min", "decode"]
+__all__ = ["HAVE_NUMBA", "vertex_stage", "raster_mesh", "zbuf_min", "decode", "tile_keep"]
 
 if HAVE_NUMBA:
     @njit(cache=True, nogil=True, error_model="numpy")
@@ -132,16 +132,35 @@ if HAVE_NUMBA:
         return u0, u1, v0, v1
 
     @njit(cache=True, nogil=True, error_model="numpy")
-    def _tile_faces(FT, bad, tile_out):
-        """Faces with a vertex off the fast path, written to ``tile_out``; returns their number."""
+    def _tile_faces(FT, bad, tile_out, zv, near, xy, fbox, cull):
+        """Faces with a vertex off the fast path, written to ``tile_out``; returns their number. Of those
+        with every vertex beyond the near plane (nothing to clip), the ones whose normalised bounding box
+        misses ``fbox`` (the box of all valid pixel rays plus a margin: they cover no pixel) and, with
+        ``cull``, the back faces are left out (:func:`tile_keep`, the numpy path's same test)."""
         n = 0
         if not bad.any():
             return 0
         for t in range(FT.shape[1]):
-            if bad[FT[0, t]] or bad[FT[1, t]] or bad[FT[2, t]]:
+            a, b, c = FT[0, t], FT[1, t], FT[2, t]
+            if bad[a] or bad[b] or bad[c]:
+                if (zv[a] > near) & (zv[b] > near) & (zv[c] > near) and not tile_keep(
+                        xy[2 * a], xy[2 * a + 1], xy[2 * b], xy[2 * b + 1], xy[2 * c], xy[2 * c + 1], fbox, cull):
+                    continue
                 tile_out[n] = t
                 n += 1
         return n
+
+    @njit(cache=True, nogil=True, error_model="numpy")
+    def tile_keep(xa, ya, xb, yb, xc, yc, fbox, cull):
+        """Does a triangle in front of the near plane (normalised vertices) need the tile path? Not when its
+        bounding box misses ``fbox`` ``(xmin, xmax, ymin, ymax)`` or it is a back face (``cull``)."""
+        if max(xa, xb, xc) < fbox[0] or min(xa, xb, xc) > fbox[1]:
+            return False
+        if max(ya, yb, yc) < fbox[2] or min(ya, yb, yc) > fbox[3]:
+            return False
+        area = (xb - xa) * (yc - ya)
+        area = area - (ya - yb) * (xa - xc)
+        return not area * cull > 0
 
     @njit(cache=True, nogil=True, error_model="numpy")
     def _nonempty_faces(FT, lanes, bad, any_bad, off, out, xy, cull):
@@ -167,7 +186,8 @@ if HAVE_NUMBA:
         return n
 
     @njit(cache=True, nogil=True, error_model="numpy")
-    def raster_mesh(FT, lanes, bad, u, v, xy, iz, ray, W, H, c_bend, eps, off, gid0, zbuf, mask, tile_out, cull):
+    def raster_mesh(FT, lanes, bad, u, v, xy, iz, ray, W, H, c_bend, eps, off, gid0, zbuf, mask, tile_out, cull,
+                    zv, near, fbox):
         """Rasterise the fast-path triangles of one mesh.
 
         Parameters
@@ -205,16 +225,19 @@ if HAVE_NUMBA:
         cull : float32
             Back-face culling sign (:func:`evpose.core.data.mesh_closure.cull_sign`): faces whose
             signed normalised-plane area ``A`` has ``cull * A > 0`` are skipped; 0 culls nothing.
-            Applied only when no face takes the tile path (every vertex beyond the near plane).
+            The caller passes 0 unless every vertex lies beyond the near plane.
+        zv : (N,) float32
+            Vertex depths ``z`` (metres); ``near`` the near plane (float32).
+        fbox : (4,) float32
+            ``xmin, xmax, ymin, ymax`` of all valid pixel rays, widened by a margin: tile-path faces in
+            front of the near plane whose bounding box misses it are dropped.
 
         Returns
         -------
         int
             Number of faces written to ``tile_out``.
         """
-        n_tile = _tile_faces(FT, bad, tile_out)
-        if n_tile > 0:
-            cull = np.float32(0.0)
+        n_tile = _tile_faces(FT, bad, tile_out, zv, near, xy, fbox, cull)
         depth_mode = len(zbuf) > 0
         mask_mode = len(mask) > 0
         one = np.float32(1.0)
@@ -309,4 +332,4 @@ if HAVE_NUMBA:
             if want_face:
                 face[p] = gid - bases[o]
 else:                                                  # pragma: no cover
-    raster_mesh = zbuf_min = decode = None
+    raster_mesh = zbuf_min = decode = tile_keep = None

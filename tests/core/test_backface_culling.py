@@ -140,3 +140,28 @@ def test_scene_pays_the_closure_check_when_it_loads_a_model(tiny_scene_dir, monk
     Rasterizer(CameraModel.davis346()).full_masks(models, random_poses(models, np.random.default_rng(1)))
     assert len(calls) == len(models)
     assert mesh_closure.cached_cull_sign(models[0].vertices_m, np.array(models[0].faces)) == 0   # writable
+
+
+def test_meshes_across_the_image_border_no_pixel_changes(raster, monkeypatch):
+    """Objects straddling the image border and corners (vertices beyond the fast-path disc take the tile
+    path): with every vertex in front of the near plane, back faces and faces outside every pixel's ray are
+    left out of the tile path too. Renders equal the unculled ones, and the tile path did run."""
+    tiled = []
+    real = Rasterizer._tile_path
+
+    def spy(self, V, FT, t, *a):
+        tiled.append(len(t))
+        return real(self, V, FT, t, *a)
+
+    monkeypatch.setattr(Rasterizer, "_tile_path", spy)
+    models = [box_model("box", (0.12, 0.08, 0.1)), cylinder_model("cyl", 0.04, 0.15),
+              ObjectModel.from_trimesh(trimesh.creation.icosphere(subdivisions=4, radius=0.05), "ball")]
+    rng = np.random.default_rng(11)
+    covered = 0
+    for x, y, z in ((0.1, 0.0, 0.12), (0.15, 0.05, 0.15), (-0.12, 0.08, 0.12), (0.2, 0.1, 0.2)):   # close, at the edge
+        poses = [T_from_rotvec(rng.normal(0, 1.2, 3), [x + 0.02 * k, y - 0.015 * k, z + 0.04 * k])
+                 @ make_T(np.eye(3), -m.bbox_center_m) for k, m in enumerate(models)]
+        tiled.clear()
+        covered += assert_same_with_and_without(raster, models, poses)
+        assert sum(tiled) > 0, "the tile path did not run: the poses do not reach past the fast-path disc"
+    assert covered > 3000
