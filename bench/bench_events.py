@@ -2,7 +2,7 @@
 
 Usage::
 
-    python bench/bench_events.py [--events 50_000_000] [--small 5_000_000] [--windows 1000]
+    python bench/bench_events.py [--events 50_000_000] [--small 5_000_000] [--windows 1000] [--json]
 
 Generates once (cached in bench/.data/) DSEC-like files (uint32 t + t_offset, Blosc-LZ4, ms_to_idx) at about
 1 M events/s with bursty rate, 640x480 moving-edge x/y and polarity, plus copies without ms_to_idx. Prints one
@@ -132,13 +132,14 @@ def stats(a):
 
 def stage_time(n_events, n_windows):
     """(a) open times and (b) window times for one file size; returns a JSON-able dict (seconds)."""
+    from evpose.core.data.event_index import index_cache_file
+
     with_idx, no_idx = ensure_files(n_events)
     r = {"n": n_events, "size_mb": with_idx.stat().st_size / 1e6, "chunk": DEFAULT_CHUNK_EVENTS}
 
     def open_close(path, first=False):
         if first:                                 # forget the cached index and validation result
-            with EventStore(path, sensor_size=(WIDTH, HEIGHT)) as s:
-                s._cache_file().unlink(missing_ok=True)
+            index_cache_file(path).unlink(missing_ok=True)
         dt, s = timed(lambda: EventStore(path, sensor_size=(WIDTH, HEIGHT)))
         s.close()
         return dt
@@ -196,7 +197,8 @@ def run_child(*args):
 
 
 # ------------------------------------------------------------------------------------------------ report
-def report(cols, n_windows):
+def report(cols, n_windows, out=sys.stdout):
+    """Print the table on ``out``; returns the targets as (name, passed, value text)."""
     small, big = cols
     for r in cols:
         sw, nw = r["store_win"]["mean"], r["naive_win"]["mean"]
@@ -251,7 +253,26 @@ def report(cols, n_windows):
                 f"EventStore {grow_store:+.0f} MB, baseline {grow_naive:+.0f} MB")]
     lines.append("targets")
     lines += [f"  {name:64}{'PASS' if ok else 'FAIL'}  {value}" for name, ok, value in targets]
-    print("\n".join(lines))
+    print("\n".join(lines), file=out)
+    return targets
+
+
+def headline(cols, n_windows, targets) -> dict:
+    """The figures of :func:`report` as one JSON-able document (times in ms, sizes in MB)."""
+    def one(r):
+        return {"events": r["n"], "file_mb": round(r["size_mb"], 1), "duration_s": round(r["duration_s"], 2),
+                "open_ms": {"first_with_index": r["open_index"] * 1e3, "first_build_index": r["open_build"] * 1e3,
+                            "cached": r["open_cached"] * 1e3, "baseline_load_all": r["naive_load"] * 1e3},
+                "window_ms": {"mean": r["store_win"]["mean"] * 1e3, "p95": r["store_win"]["p95"] * 1e3,
+                              "consecutive_mean": r["store_seq"]["mean"] * 1e3,
+                              "baseline_mean": r["naive_win"]["mean"] * 1e3},
+                "ratio_window_vs_baseline": r["ratio_win"], "baseline_pays_off_after_windows": r["break_even"],
+                "mean_events_per_window": r["mean_events"],
+                "peak_rss_mb": {"imports": r["rss_imports"], "event_store": r["rss_store"], "baseline": r["rss_naive"]}}
+    return {"benchmark": "events", "data": f"synthetic DSEC-style HDF5 files (uint32 t + t_offset, Blosc-LZ4, "
+            f"{WIDTH}x{HEIGHT}, ~1 M events/s bursty), {n_windows} random {WIN_US // 1000} ms windows",
+            "cores": os.cpu_count(), "sizes": [one(r) for r in cols],
+            "targets": {name: {"pass": bool(ok), "value": value} for name, ok, value in targets}}
 
 
 def main(argv=None):
@@ -259,6 +280,8 @@ def main(argv=None):
     ap.add_argument("--events", type=lambda s: int(s.replace("_", "")), default=50_000_000)
     ap.add_argument("--small", type=lambda s: int(s.replace("_", "")), default=5_000_000)
     ap.add_argument("--windows", type=int, default=1000)
+    ap.add_argument("--json", action="store_true", help="print one JSON document of the headline figures "
+                    "(the table goes to stderr)")
     ap.add_argument("--stage", nargs="+", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.stage:                                   # child process
@@ -279,7 +302,9 @@ def main(argv=None):
         for method in ("imports", "store", "naive"):
             r[f"rss_{method}"] = run_child(method, path, a.windows)["maxrss_mb"]
         cols.append(r)
-    report(cols, a.windows)
+    targets = report(cols, a.windows, out=sys.stderr if a.json else sys.stdout)
+    if a.json:
+        print(json.dumps(headline(cols, a.windows, targets)))
 
 
 if __name__ == "__main__":

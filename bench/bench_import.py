@@ -2,7 +2,7 @@
 
 Usage::
 
-    python bench/bench_import.py [--events 50_000_000] [--small 5_000_000] [--baseline-messages 100]
+    python bench/bench_import.py [--events 50_000_000] [--small 5_000_000] [--baseline-messages 100] [--json]
 
 Generates once (cached in bench/.data/) synthetic inputs with random events at 2 M ev/s:
 
@@ -28,6 +28,9 @@ and with ``MALLOC_MMAP_THRESHOLD_=131072`` (``live``: glibc's static default thr
 threshold the importers' RSS creeps up by ~40 MB over 50 M events while their tracemalloc-traced memory stays flat;
 the fixed threshold costs speed, since every large array is then a fresh mmap). Times are wall clock with a warm page cache, 2 cores, from the call to the
 renamed scene folder (fsync included), without interpreter start-up and module imports.
+
+``--json`` prints one JSON document of the rows (events/s, peak and live MB, ratios) on stdout; the table goes to
+stderr.
 """
 from __future__ import annotations
 
@@ -236,6 +239,8 @@ def main() -> None:
     ap.add_argument("--events", type=int, default=50_000_000)
     ap.add_argument("--small", type=int, default=5_000_000)
     ap.add_argument("--baseline-messages", type=int, default=100)
+    ap.add_argument("--json", action="store_true", help="print one JSON document of the headline figures "
+                    "(the table goes to stderr)")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
@@ -272,10 +277,12 @@ def main() -> None:
         rows.append(("dsec", n, f"{mb:.0f} MB", "evpose import --events-mode copy", ours, naive, "naive h5py full copy"))
         ours = both("link-dsec", dsec)
         rows.append(("dsec", n, f"{mb:.0f} MB", "evpose import --events-mode link", ours, naive, "naive h5py full copy"))
+    out = sys.stderr if a.json else sys.stdout
     hdr = (f"{'format':<9} {'events':>10} {'input':>6} | {'method':<32} {'M ev/s':>6} {'peak':>5} {'live':>5} | "
            f"{'baseline':<28} {'M ev/s':>6} {'peak':>5} {'live':>5} | {'speed x':>7} {'live mem x':>10}")
-    print(hdr)
-    print("-" * len(hdr))
+    print(hdr, file=out)
+    print("-" * len(hdr), file=out)
+    doc_rows = []
     for fmt, n, size, meth, o, b, bname in rows:
         o_rate = o["n"] / o["seconds"] / 1e6
         o_txt = f"{meth:<32} {o_rate:>6.2f} {o['maxrss_mb']:>5.0f} {o['live_mb']:>5.0f}"
@@ -286,12 +293,25 @@ def main() -> None:
             ratio = f"{o_rate / b_rate:>7.1f} {mem:>10}"
         else:
             b_txt, ratio = f"{'(timed on the large file)':<28} {'':>6} {'':>5} {'':>5}", f"{'':>7} {'':>10}"
-        print(f"{fmt:<9} {n:>10,} {size:>6} | {o_txt} | {b_txt} | {ratio}")
+        print(f"{fmt:<9} {n:>10,} {size:>6} | {o_txt} | {b_txt} | {ratio}", file=out)
+        doc_rows.append({"format": fmt, "events": n, "input": size, "method": meth, "m_events_per_s": round(o_rate, 3),
+                         "peak_mb": round(o["maxrss_mb"], 1), "live_mb": round(o["live_mb"], 1),
+                         "baseline": None if not b else {
+                             "method": bname, "m_events_per_s": round(b_rate, 3), "peak_mb": round(b["maxrss_mb"], 1),
+                             "live_mb": round(b["live_mb"], 1), "speed_ratio": round(o_rate / b_rate, 2),
+                             "live_memory_ratio": None if bname.startswith("rosbags") else
+                             round(b["live_mb"] / o["live_mb"], 2)}})
     print(f"\nM ev/s and peak = wall clock and ru_maxrss (MB) with glibc's default malloc; live = ru_maxrss (MB) of a second "
           "run with MALLOC_MMAP_THRESHOLD_=131072, which stops heap fragmentation from inflating RSS. speed x = our "
           "events/s over the baseline's; live mem x = baseline live MB over ours. The rosbags baseline is timed on the "
           f"first {a.baseline_messages} messages (about {a.baseline_messages * 20_000 / 1e6:.0f} M events) and "
-          "extrapolated (its memory covers those messages only). Targets: >= 1 M ev/s (bag), >= 5 M ev/s (DSEC).")
+          "extrapolated (its memory covers those messages only). Targets: >= 1 M ev/s (bag), >= 5 M ev/s (DSEC).",
+          file=out)
+    if a.json:
+        print(json.dumps({"benchmark": "import", "data": f"synthetic ROS1 bag (dvs_msgs/EventArray, 346x260) and "
+                          f"DSEC-layout files (640x480), random events at {RATE / 1e6:g} M ev/s, cached in bench/.data",
+                          "cores": os.cpu_count(), "baseline_messages": a.baseline_messages, "rows": doc_rows,
+                          "targets_m_events_per_s": {"epose-bag": 1.0, "dsec": 5.0}}))
 
 
 if __name__ == "__main__":

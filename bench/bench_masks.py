@@ -1,6 +1,7 @@
 """Benchmark: mask generation, error against run time (tracker issue 3).
 
-Run ``python bench/bench_masks.py`` (under a minute on 2 cores). One DAVIS346 frame (with the
+Run ``python bench/bench_masks.py [--json]`` (under a minute on 2 cores; ``--json``: one JSON document of the
+figures on stdout, the table on stderr). One DAVIS346 frame (with the
 E-POSE lens distortion), 3 objects between 0.3 and 0.6 m, the nearest hiding about a quarter of
 the farthest, ``N_FRAMES`` poses (base poses jittered by ~3 deg / ~3 mm) after ``N_WARM``
 warm-up poses. Every method makes the visible (modal) mask of each object; the error is its
@@ -31,6 +32,8 @@ cores.
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import platform
 import sys
@@ -175,7 +178,14 @@ def timed(fn, seq):
     return ms(ts), outs
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--json", action="store_true", help="print one JSON document of the figures (table on stderr)")
+    args = ap.parse_args(argv)
+
+    def emit(*a):
+        print(*a, file=sys.stderr if args.json else sys.stdout)
+
     t_start = time.perf_counter()
     camera = CameraModel.davis346()
     raster = Rasterizer(camera)
@@ -235,37 +245,51 @@ def main() -> None:
     occ = np.mean([[1 - iou(e[k], f[k]) for k in range(n)] for e, f in zip(exact[N_WARM:], full)], axis=0)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
-    print(f"evpose mask benchmark: DAVIS346 {camera.width}x{camera.height} with distortion, {src}")
-    print(f"python {platform.python_version()}, numpy {np.__version__}, opencv {cv2.__version__}, "
+    emit(f"evpose mask benchmark: DAVIS346 {camera.width}x{camera.height} with distortion, {src}")
+    emit(f"python {platform.python_version()}, numpy {np.__version__}, opencv {cv2.__version__}, "
           f"open3d {o3d_caster.o3d.__version__}, {os.cpu_count()} cpus, load average {load:.2f}")
-    print(f"{N_FRAMES} poses (after {N_WARM} warm-up), bounding-box centres at z = "
+    emit(f"{N_FRAMES} poses (after {N_WARM} warm-up), bounding-box centres at z = "
           + ", ".join(f"{t[2]:.2f}" for _, t in BASE_POSES) + " m (+- ~3 mm); triangles "
           + ", ".join(str(len(m.faces)) for m in models))
-    print("visible pixels per object (mean): " + ", ".join(f"{v:.0f}" for v in vis)
+    emit("visible pixels per object (mean): " + ", ".join(f"{v:.0f}" for v in vis)
           + "; hidden by the others: " + ", ".join(f"{100 * o:.0f} %" for o in occ))
-    print("splat: points sampled once per mesh (not timed): "
+    emit("splat: points sampled once per mesh (not timed): "
           + ", ".join(f"N={N:.0e} {1e3 * s:.0f} ms" for N, s in t_sample.items()))
-    print(f"splat (cv2): cv2.projectPoints per object; splat (numpy): the same lens model in numpy, "
+    emit(f"splat (cv2): cv2.projectPoints per object; splat (numpy): the same lens model in numpy, "
           f"{NUMPY_CHUNK} points per pass (max difference {proj_err:.1e} px)")
-    print("ms/frame: median (and minimum) over the poses, all 3 masks; IoU against the exact open3d mask, "
+    emit("ms/frame: median (and minimum) over the poses, all 3 masks; IoU against the exact open3d mask, "
           "mean and minimum over objects and poses\n")
     head = (f"{'method':26s} {'parameters':22s} {'ms/frame':>9s} {'(min)':>8s} {'IoU mean':>9s} {'IoU min':>8s}")
-    print(head)
-    print("-" * len(head))
+    emit(head)
+    emit("-" * len(head))
     for name, par, t_med, t_min, im, imin in rows:
-        print(f"{name:26s} {par:22s} {t_med:9.2f} {t_min:8.2f} {im:9.4f} {imin:8.4f}")
-    print()
+        emit(f"{name:26s} {par:22s} {t_med:9.2f} {t_min:8.2f} {im:9.4f} {imin:8.4f}")
+    emit()
     for projection, r in ref.items():
-        print(f"ours is {faster(r[2], ours[2])} than splat {REF_N:.0e} (k={REF_K}, {projection} projection) "
+        emit(f"ours is {faster(r[2], ours[2])} than splat {REF_N:.0e} (k={REF_K}, {projection} projection) "
               f"at IoU {ours[4]:.4f} vs {r[4]:.4f} (mean; min {ours[5]:.4f} vs {r[5]:.4f}); "
               f"{faster(r[3], ours[3])} on minimum times")
     best = max(rows[3:], key=lambda r: (r[4], -r[2]))
-    print(f"ours is {faster(best[2], ours[2])} than the most accurate splat ({best[0]} {best[1]}) "
+    emit(f"ours is {faster(best[2], ours[2])} than the most accurate splat ({best[0]} {best[1]}) "
           f"at IoU {ours[4]:.4f} vs {best[4]:.4f} (mean; min {ours[5]:.4f} vs {best[5]:.4f})")
-    print(f"ours differs from the exact masks in {ours_diff} of {ours_px} mask pixels over the {N_FRAMES} poses")
-    print(f"ours is {faster(rows[0][2], ours[2])} than open3d build + cast "
+    emit(f"ours differs from the exact masks in {ours_diff} of {ours_px} mask pixels over the {N_FRAMES} poses")
+    emit(f"ours is {faster(rows[0][2], ours[2])} than open3d build + cast "
           f"and takes {ours[2] / rows[1][2]:.2f}x the time of open3d's cast alone (BVH already built)")
-    print(f"\nbench runtime {time.perf_counter() - t_start:.1f} s")
+    emit(f"\nbench runtime {time.perf_counter() - t_start:.1f} s")
+    if args.json:
+        print(json.dumps({
+            "benchmark": "masks", "data": f"one DAVIS346 frame with distortion, {src}; {N_FRAMES} poses after "
+            f"{N_WARM} warm-up; triangles {[len(m.faces) for m in models]}; visible pixels per object "
+            f"{[round(float(v)) for v in vis]}, hidden by the others {[round(100 * float(o)) for o in occ]} %",
+            "cores": os.cpu_count(), "load_average": round(load, 2),
+            "rows": [{"method": name, "parameters": par, "ms_median": round(t_med, 3), "ms_min": round(t_min, 3),
+                      "iou_mean": round(im, 5), "iou_min": round(imin, 5)} for name, par, t_med, t_min, im, imin in rows],
+            "ours_ms_median": round(ours[2], 3), "ours_iou_mean": round(ours[4], 5),
+            "ours_pixels_differing": ours_diff, "mask_pixels": ours_px,
+            "ratio_open3d_build_cast_over_ours": round(rows[0][2] / ours[2], 2),
+            "ratio_ours_over_open3d_cast_only": round(ours[2] / rows[1][2], 2),
+            "ratio_splat_over_ours": {p: round(r[2] / ours[2], 2) for p, r in ref.items()},
+            "runtime_s": round(time.perf_counter() - t_start, 1)}))
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Time per DAVIS346 event frame (core/label/event_frames, represent) for 10^4 .. 10^7 events in one 10 ms window.
 
-Run: ``.venv/bin/python bench/bench_represent.py [--quick]``. Prints one table, milliseconds per frame
+Run: ``.venv/bin/python bench/bench_represent.py [--quick] [--json]``. Prints one table, milliseconds per frame
 (best of several repeats; inputs prepared outside the timing):
 
 * ``counts``       :func:`polarity_counts` (one ``np.bincount`` over ``p*H*W + y*W + x``), incl. range checks
@@ -11,10 +11,13 @@ Run: ``.venv/bin/python bench/bench_represent.py [--quick]``. Prints one table, 
 * ``3ch``, ``voxel5``, ``tsurf``  :func:`three_channel`, :func:`voxel_grid` (5 bins), :func:`time_surface` (split)
 * ``undist``       :meth:`EventUndistorter.apply` + :func:`polarity_counts` (table built once, time shown above)
 * ``rgb``          the whole ``to_rgb("polarity", ...)`` display path
-Target: polarity counts of 10^6 events well below 10 ms.
+Target: polarity counts of 10^6 events well below 10 ms. ``--json``: one JSON document of the same figures on
+stdout, the table on stderr.
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import sys
 import time
@@ -54,19 +57,25 @@ def events(n, seed=0):
 
 
 def main(argv=None):
-    quick = "--quick" in (argv if argv is not None else sys.argv[1:])
-    sizes = [10**4, 10**5, 10**6] if quick else [10**4, 10**5, 10**6, 10**7]
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="up to 10^6 events")
+    ap.add_argument("--json", action="store_true", help="print one JSON document of the figures (table on stderr)")
+    args = ap.parse_args(argv)
+    out = sys.stderr if args.json else sys.stdout
+    sizes = [10**4, 10**5, 10**6] if args.quick else [10**4, 10**5, 10**6, 10**7]
     cam = CameraModel.davis346()
     clear_undistorter_cache()
     s = time.perf_counter()
     und = undistorter_for(cam)
     build_ms = (time.perf_counter() - s) * 1e3
-    print(f"numpy {np.__version__}, {os.cpu_count()} cores; DAVIS346 {W}x{H}, 10 ms window, ms per frame (best of n)")
-    print(f"undistortion table built once in {build_ms:.1f} ms ({und.n_valid} of {W * H} pixels map into the image)")
+    print(f"numpy {np.__version__}, {os.cpu_count()} cores; DAVIS346 {W}x{H}, 10 ms window, ms per frame (best of n)",
+          file=out)
+    print(f"undistortion table built once in {build_ms:.1f} ms ({und.n_valid} of {W * H} pixels map into the image)",
+          file=out)
     cols = ["events", "counts", "add.at(p,y,x)", "ratio", "bc flat", "add.at flat", "3ch", "voxel5", "tsurf",
             "undist", "rgb"]
     widths = [7, 8, 14, 7, 8, 12, 8, 8, 8, 8, 8]
-    print(" ".join(c.rjust(w) for c, w in zip(cols, widths)))
+    print(" ".join(c.rjust(w) for c, w in zip(cols, widths)), file=out)
     results = {}
     for n in sizes:
         ev = events(n)
@@ -103,10 +112,16 @@ def main(argv=None):
         row = [f"{n:.0e}".replace("e+0", "e")]
         for c in cols[1:]:
             row.append(f"{t[c]:.2f}x" if c == "ratio" else f"{t[c]:.2f}")
-        print(" ".join(v.rjust(w) for v, w in zip(row, widths)), flush=True)
+        print(" ".join(v.rjust(w) for v, w in zip(row, widths)), file=out, flush=True)
     c6 = results[10**6]["counts"]
     print(f"target: polarity counts of 10^6 events {c6:.2f} ms {'<' if c6 < 10 else '>='} 10 ms "
-          f"({'met' if c6 < 10 else 'MISSED'})")
+          f"({'met' if c6 < 10 else 'MISSED'})", file=out)
+    if args.json:
+        print(json.dumps({"benchmark": "represent", "data": f"uniform random events in one 10 ms window, DAVIS346 "
+                          f"{W}x{H}; ms per frame, best of several repeats", "numpy": np.__version__,
+                          "cores": os.cpu_count(), "undistortion_table_build_ms": round(build_ms, 2),
+                          "ms_per_frame": {str(n): {k: round(v, 3) for k, v in t.items()} for n, t in results.items()},
+                          "counts_1e6_ms": round(c6, 3), "target_ms": 10.0, "target_met": bool(c6 < 10)}))
     return results
 
 
