@@ -365,6 +365,29 @@ def test_undistorter_cache_is_keyed_by_value(davis):
     assert np.array_equal(rgb, polarity_rgb(*polarity_counts(ref, W, H)))
 
 
+def test_undistorter_cache_is_bounded_in_bytes(monkeypatch):
+    """The cache keeps the most recently used tables up to UNDISTORTER_CACHE_BYTES; a table larger than the
+    bound is returned but not kept (nor does it push the others out)."""
+    from evpose.core.label.event_frames import undistort
+
+    def cam(f, w=40, h=30):
+        return CameraModel(np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]]), [0.1, 0, 0, 0, 0], w, h)
+
+    clear_undistorter_cache()
+    one = undistorter_for(cam(30.0)).nbytes
+    assert one == 13 * 40 * 30                        # int32 (u, v) + ok + uint16 x, y per pixel
+    monkeypatch.setattr(undistort, "UNDISTORTER_CACHE_BYTES", int(2.5 * one))
+    clear_undistorter_cache()
+    tables = [undistorter_for(cam(f)) for f in (30.0, 31.0, 32.0, 33.0)]
+    assert undistort.undistorter_cache_nbytes() == 2 * one <= undistort.UNDISTORTER_CACHE_BYTES
+    assert undistorter_for(cam(33.0)) is tables[3] and undistorter_for(cam(32.0)) is tables[2]
+    assert undistorter_for(cam(30.0)) is not tables[0]          # the least recently used went first
+    big = undistorter_for(cam(30.0, 80, 60))                      # 4 tables' worth: returned, not kept
+    assert big.nbytes > undistort.UNDISTORTER_CACHE_BYTES and undistorter_for(cam(30.0, 80, 60)) is not big
+    assert undistort.undistorter_cache_nbytes() == 2 * one
+    clear_undistorter_cache()
+
+
 # ------------------------------------------------------------------------------------------------ display
 @pytest.mark.parametrize("background, empty", [("white", (255, 255, 255)), ("black", (0, 0, 0))])
 def test_polarity_rgb_colours(background, empty):

@@ -1,4 +1,4 @@
-"""Events moved to undistorted pixels through a per-pixel lookup table, cached per camera."""
+"""Events moved to undistorted pixels through a per-pixel lookup table, cached per camera (bounded in bytes)."""
 from __future__ import annotations
 
 import threading
@@ -69,6 +69,11 @@ class EventUndistorter:
         self.lut = lut
         self.n_valid = int(ok.sum())
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the tables (13 per input pixel: 1.2 MB for a DAVIS346, 12 MB for 1280x720)."""
+        return self.lut.nbytes + self._ok.nbytes + self._x.nbytes + self._y.nbytes
+
     def apply(self, ev: EventArray) -> EventArray:
         """Events moved to their undistorted pixels; events whose pixel maps outside are dropped.
 
@@ -96,7 +101,8 @@ class EventUndistorter:
 
 _CACHE: OrderedDict = OrderedDict()
 _CACHE_LOCK = threading.Lock()
-_CACHE_MAX = 16
+#: Bytes of tables kept by :func:`undistorter_for` (least recently used dropped first): a few HD cameras.
+UNDISTORTER_CACHE_BYTES = 48 << 20
 
 
 def _camera_key(camera, K_new, size) -> tuple:
@@ -110,7 +116,8 @@ def undistorter_for(camera, K_new=None, size=None) -> EventUndistorter:
     """The :class:`EventUndistorter` for these camera parameters, built once and reused.
 
     Keyed by value (``K``, ``dist``, sensor size, ``K_new``, ``size``), so equal cameras share one table even
-    when they are different objects. Thread-safe; the last 16 tables are kept.
+    when they are different objects. Thread-safe; the most recently used tables are kept up to
+    :data:`UNDISTORTER_CACHE_BYTES` (a table larger than that is returned, not kept).
     """
     key = _camera_key(camera, K_new, size)
     with _CACHE_LOCK:
@@ -119,12 +126,19 @@ def undistorter_for(camera, K_new=None, size=None) -> EventUndistorter:
             _CACHE.move_to_end(key)
             return u
     u = EventUndistorter(camera, K_new, size)      # built outside the lock (tens of ms)
+    if u.nbytes > UNDISTORTER_CACHE_BYTES:
+        return u
     with _CACHE_LOCK:
         u = _CACHE.setdefault(key, u)
         _CACHE.move_to_end(key)
-        while len(_CACHE) > _CACHE_MAX:
+        while _CACHE and undistorter_cache_nbytes() > UNDISTORTER_CACHE_BYTES:
             _CACHE.popitem(last=False)
     return u
+
+
+def undistorter_cache_nbytes() -> int:
+    """Bytes of the tables :func:`undistorter_for` keeps now."""
+    return sum(u.nbytes for u in list(_CACHE.values()))
 
 
 def clear_undistorter_cache() -> None:
