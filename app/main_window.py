@@ -10,6 +10,7 @@ from evpose.app import actions as A
 from evpose.app.align import AlignController
 from evpose.app.controller import Controller
 from evpose.app.disk_watch import CorrectionsWatcher
+from evpose.app.memory import IdleReleaser
 from evpose.app.settings import Settings
 from evpose.app.undo_bridge import UndoBridge
 from evpose.app.workers import LatestWorker
@@ -78,6 +79,8 @@ class MainWindow(QtWidgets.QMainWindow):
                                              idle=spacetime_fc.prefetch_spacetime)
         self.spacetime_worker.done.connect(self._spacetime_ready)
         self.spacetime_worker.failed.connect(self._worker_failed)
+        #: gives freed heap pages and cached module sources back once the user pauses (app/memory.py)
+        self.memory = IdleReleaser(self)
         self._spacetime_timer = QtCore.QTimer(self, singleShot=True, interval=SPACETIME_DEBOUNCE_MS)
         self._spacetime_timer.timeout.connect(self.request_spacetime)
         self._autosave = QtCore.QTimer(self, interval=AUTOSAVE_MS)
@@ -340,6 +343,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def _on_session(self, change: Change) -> None:
         self.request_frame()                 # every kind of session change shows in the frame
+        self.memory.poke()
         self._spacetime_timer.start()
         if change.kind == "view":
             self._sync_view_actions()
@@ -383,6 +387,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.frame_view is None or serial <= self._shown_serial["frame"]:
             return  # stale
         self._shown_serial["frame"] = serial
+        self.memory.poke()
         self.frame = data
         self.frame_view.set_overlays(data)
         if self.objects is not None:
@@ -392,6 +397,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.spacetime is None or serial <= self._shown_serial["spacetime"]:
             return
         self._shown_serial["spacetime"] = serial
+        self.memory.poke()
         self.spacetime.set_data(data)
 
     def frame_up_to_date(self) -> bool:
