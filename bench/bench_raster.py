@@ -4,7 +4,10 @@ Run ``python bench/bench_raster.py`` (``--json``: one JSON document of the headl
 (after a warm-up) are rendered by
 
 * ``ours``: :class:`evpose.core.label.raster.Rasterizer` (``render_objects``: models and poses)
-  with the numba kernels (``backend="numba"``, kernels warmed up first);
+  with the numba kernels (``backend="numba"``, kernels warmed up first), one thread;
+* ``2 thr``: the same with ``threads=2`` (the meshes split over two threads, each into its own z-buffer,
+  merged by the minimum key), as the app's overlay worker runs it; open3d's cast below also uses
+  every core (its TBB pool);
 * ``numpy``: the rasteriser before issue 14, the baseline of ``numpy/ours``: the same class with
   ``backend="numpy"`` (the vectorised numpy pipeline that was the whole rasteriser before the kernels)
   on models whose face arrays are writable copies, which turns off the back-face culling of closed
@@ -148,7 +151,7 @@ class Open3D:
         return best_k
 
 
-def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, baseline=None):
+def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, baseline=None, raster2=None):
     """Time one scene. The contenders run in separate passes over the same frames: open3d's
     (TBB) worker threads keep spinning for a while after a call returns and would slow down
     whatever runs right after them on a machine with few cores."""
@@ -167,6 +170,13 @@ def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, basel
         t_ours.append(time.perf_counter() - t0)
         ours.append(res.obj_index)
     stages = {k: 1e3 * v / N_FRAMES for k, v in raster.timings.items()}
+    t_two, same2 = [], True                          # the same kernels, meshes split over two threads
+    for i, meshes in enumerate(seq):
+        poses = [T for _, _, T in meshes]
+        t0 = time.perf_counter()
+        res = raster2.render_objects(all_models, poses)
+        t_two.append(time.perf_counter() - t0)
+        same2 &= bool(np.array_equal(res.obj_index, ours[i]))
     plain = [unculled(m) for m in all_models]
     t_base, t_nocull, same = [], [], True
     for i, meshes in enumerate(seq):                 # the numpy pipeline (no culling) on the same frames
@@ -202,7 +212,7 @@ def run_scene(label, camera, raster, o3d_caster, models, rng, table=False, basel
         t_objf.append(time.perf_counter() - t0)
     time.sleep(0.2)
     n_tri = sum(len(F) for _, F, _ in seq[0])
-    return dict(label=label, tris=n_tri, ours=med(t_ours), numpy=med(t_base), numpy_min=1e3 * min(t_base[N_WARM:]),
+    return dict(label=label, tris=n_tri, ours=med(t_ours), two=med(t_two), same2=same2, numpy=med(t_base), numpy_min=1e3 * min(t_base[N_WARM:]),
                 nocull=med(t_nocull),
                 same_as_numpy=same, ours_min=1e3 * min(t_ours[N_WARM:]), cast=med(t_cast),
                 cast_min=1e3 * min(t_cast[N_WARM:]), build=med(t_build), objf=med(t_objf),
@@ -258,6 +268,8 @@ def main() -> None:
     setup_s = time.perf_counter() - t0
     warm_s = raster.warm_up()
     baseline = Rasterizer(camera, backend="numpy")
+    raster2 = Rasterizer(camera, threads=2)
+    raster2.warm_up()
     o3d_caster = Open3D(camera)
     rng = np.random.default_rng(1)
     big, src = load_models(["nine_hole_peg.stl", "wrench.stl", "mustard_bottle.stl"])
@@ -266,13 +278,13 @@ def main() -> None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     latency = first_frame_latency()
     rows = [
-        run_scene("3 objects: peg, wrench, mustard", camera, raster, o3d_caster, big, rng, baseline=baseline),
-        run_scene("3 objects: drill, cracker, mustard", camera, raster, o3d_caster, mid, rng, baseline=baseline),
+        run_scene("3 objects: peg, wrench, mustard", camera, raster, o3d_caster, big, rng, baseline=baseline, raster2=raster2),
+        run_scene("3 objects: drill, cracker, mustard", camera, raster, o3d_caster, mid, rng, baseline=baseline, raster2=raster2),
         run_scene("5 objects: peg...mustard, sugar, scissors", camera, raster, o3d_caster, five, rng,
-                  baseline=baseline),
-        run_scene("1 object: nine_hole_peg", camera, raster, o3d_caster, big[:1], rng, baseline=baseline),
+                  baseline=baseline, raster2=raster2),
+        run_scene("1 object: nine_hole_peg", camera, raster, o3d_caster, big[:1], rng, baseline=baseline, raster2=raster2),
         run_scene("table plane + 3 objects (peg...)", camera, raster, o3d_caster, big, rng, table=True,
-                  baseline=baseline),
+                  baseline=baseline, raster2=raster2),
     ]
     if as_json:
         print(json.dumps(dict(
@@ -280,7 +292,10 @@ def main() -> None:
             load_average=load,
             backend=raster.backend, setup_ms=1e3 * setup_s, warm_up_ms=1e3 * warm_s, first_frame_s=latency,
             baseline="numpy pipeline without back-face culling (the rasteriser before issue 14)",
+            o3d_threads="open3d casts with its TBB pool (every core)",
             scenes=[dict(scene=r["label"], triangles=r["tris"], ours_ms=r["ours"], ours_min_ms=r["ours_min"],
+                         ours_2_threads_ms=r["two"], two_threads_same=r["same2"],
+                         o3d_cast_over_ours_2_threads=r["cast"] / r["two"],
                          baseline_ms=r["numpy"], numba_no_cull_ms=r["nocull"],
                          o3d_cast_ms=r["cast"], baseline_over_ours=r["numpy"] / r["ours"],
                          ours_over_o3d_cast=r["ours"] / r["cast"], same_as_baseline=r["same_as_numpy"],
@@ -294,20 +309,22 @@ def main() -> None:
           + ", ".join(f"{k} {v['first_frame'] * 1e3:.0f} ms (warm_up {v['warm_up'] * 1e3:.0f} ms)"
                       for k, v in latency.items()) + "\n")
     print("baseline 'before': the numpy pipeline without back-face culling (the rasteriser before issue 14); "
-          "'no cull': the numba kernels without culling\n")
-    head = (f"{'scene':41s} {'tris':>7s} {'ours':>6s} {'(min)':>6s} {'no cull':>7s} {'before':>6s} {'befor/':>6s} {'o3d cast':>8s} {'(min)':>6s} {'o3d build':>9s} "
+          "'no cull': the numba kernels without culling; '2 thr': Rasterizer(threads=2), the meshes split over two "
+          "threads (as the app's overlay worker runs it); open3d's cast uses its TBB pool on every core\n")
+    head = (f"{'scene':41s} {'tris':>7s} {'ours':>6s} {'(min)':>6s} {'2 thr':>6s} {'no cull':>7s} {'before':>6s} {'befor/':>6s} {'o3d cast':>8s} {'(min)':>6s} {'o3d build':>9s} "
             f"{'o3d obj':>8s} {'ours/':>6s} {'build+cast/':>11s}  IoU vs open3d per object")
-    sub = (f"{'':41s} {'':>7s} {'ms':>6s} {'ms':>6s} {'ms':>7s} {'ms':>6s} {'ours':>6s} {'ms':>8s} {'ms':>6s} {'+cast ms':>9s} {'frame ms':>8s} "
+    sub = (f"{'':41s} {'':>7s} {'ms':>6s} {'ms':>6s} {'ms':>6s} {'ms':>7s} {'ms':>6s} {'ours':>6s} {'ms':>8s} {'ms':>6s} {'+cast ms':>9s} {'frame ms':>8s} "
            f"{'cast':>6s} {'ours':>11s}  (min over frames)")
     print(head)
     print(sub)
     print("-" * len(head))
     for r in rows:
         iou = " ".join(f"{x:.4f}" for x in r["iou"])
-        print(f"{r['label']:41s} {r['tris']:7d} {r['ours']:6.2f} {r['ours_min']:6.2f} {r['nocull']:7.2f} {r['numpy']:6.2f} "
+        print(f"{r['label']:41s} {r['tris']:7d} {r['ours']:6.2f} {r['ours_min']:6.2f} {r['two']:6.2f} {r['nocull']:7.2f} {r['numpy']:6.2f} "
               f"{r['numpy'] / r['ours']:6.2f} {r['cast']:8.2f} "
               f"{r['cast_min']:6.2f} {r['build']:9.1f} {r['objf']:8.2f} {r['ours'] / r['cast']:6.2f} "
-              f"{r['build'] / r['ours']:11.1f}  {iou}" + ("" if r["same_as_numpy"] else "  MASKS DIFFER FROM THE BASELINE"))
+              f"{r['build'] / r['ours']:11.1f}  {iou}" + ("" if r["same_as_numpy"] else "  MASKS DIFFER FROM THE BASELINE")
+              + ("" if r["same2"] else "  2 THREADS DIFFER"))
     print("\nwhere our time goes (ms per frame, mean):")
     for r in rows:
         st = r["stages"]

@@ -47,11 +47,14 @@ class Annotator:
         Objects to label (default: all).
     clock : ClockModel, optional
         Clock override (default: the scene's clock in effect).
+    raster_threads : int
+        Threads of the rasteriser per window (:class:`~evpose.core.label.raster.Rasterizer`; default 1).
     """
 
     def __init__(self, scene, request: Request = Request(), camera: CameraModel | None = None,
-                 objects=None, clock: ClockModel | None = None):
+                 objects=None, clock: ClockModel | None = None, raster_threads: int = 1):
         self.scene = scene
+        self.raster_threads = raster_threads
         self.request = request
         self.camera = camera or scene.camera
         self.names = list(objects) if objects is not None else scene.object_names
@@ -66,7 +69,7 @@ class Annotator:
     @property
     def raster(self) -> Rasterizer:
         if self._raster is None:
-            self._raster = Rasterizer(self.camera)
+            self._raster = Rasterizer(self.camera, threads=self.raster_threads)
         return self._raster
 
     def poses(self, t_label_us) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

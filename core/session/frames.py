@@ -101,10 +101,13 @@ class FrameComputer:
     cache : evpose.core.data.event_cache.EventChunkCache, optional
         Decoded event blocks shared with other computers (thread-safe); windows are read through it
         and :meth:`prefetch` fills it ahead of the motion. Without it, windows are read from the store.
+    raster_threads : int
+        Threads of the frame's rasteriser (default 1; see :class:`~evpose.core.label.raster.Rasterizer`).
     """
 
-    def __init__(self, cache=None):
+    def __init__(self, cache=None, raster_threads: int = 1):
         self.cache = cache
+        self.raster_threads = raster_threads
         self._annotator: Annotator | None = None
         self._key = None
         self._score_params = None
@@ -122,7 +125,8 @@ class FrameComputer:
         key = (id(scene.manifest),)
         if self._annotator is None or self._key != key:
             self._annotator = Annotator(scene, Request(keypoints=True, masks_visible=True, label_map=True, depth=True,
-                                                               amodal=False))   # views show visible masks only
+                                                               amodal=False),   # views show visible masks only
+                                         raster_threads=self.raster_threads)
             self._key = key
         self._annotator.scene = scene
         return self._annotator

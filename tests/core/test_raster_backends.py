@@ -17,7 +17,8 @@ from evpose.core.data.camera import CameraModel
 from evpose.core.data.geometry import T_from_rotvec, make_T
 from evpose.core.data.objects import ObjectModel, box_model, cylinder_model
 from evpose.core.label import raster_kernels
-from evpose.core.label.raster import Rasterizer, warm_up
+from evpose.core.label import raster as raster_module
+from evpose.core.label.raster import Rasterizer, _balanced_groups, warm_up
 from tests.core.test_raster import MODELS, o3d_cast, iou, posed
 
 pytestmark = pytest.mark.skipif(not raster_kernels.HAVE_NUMBA, reason="numba not importable")
@@ -92,6 +93,41 @@ def test_same_output_on_every_path(pair):
     assert_same(Rasterizer(pinhole, backend="numpy"), Rasterizer(pinhole, backend="numba"), models, poses)
 
 
+def every_path_scene():
+    """Models and poses of :func:`test_same_output_on_every_path`."""
+    box, cyl = box_model("box", (0.12, 0.08, 0.1)), cylinder_model("cyl", 0.04, 0.15)
+    fine = ObjectModel.from_trimesh(__import__("trimesh").creation.icosphere(subdivisions=5, radius=0.05), "s")
+    table = ObjectModel("table", np.array([[-1.5, 0.12, -1.0], [1.5, 0.12, -1.0], [1.5, 0.12, 2.0],
+                                           [-1.5, 0.12, 2.0], [0.0, 0.0, 1.0]]),
+                        np.array([[0, 1, 2], [0, 2, 3], [4, 4, 4]]))
+    poses = [T_from_rotvec([0.4, 0.6, 0.2], [-0.03, 0.01, 0.5]), T_from_rotvec([1.1, 0.0, 0.3], [0.04, -0.02, 0.38]),
+             T_from_rotvec([0.2, 0.1, 0.0], [0.0, 0.02, 0.7]), np.eye(4),
+             T_from_rotvec([0.0, 0.3, 0.0], [0.33, 0.0, 0.4])]
+    return [box, cyl, fine, table, box], poses
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_threads_give_the_same_output(pair, monkeypatch, threads):
+    """Meshes split over threads, each group into its own z-buffer, merged by the minimum key: identical
+    depth bits, object and face index and amodal masks (tile path and near-plane clipping included)."""
+    monkeypatch.setattr(raster_module, "_PARALLEL_MIN_FACES", 0)
+    one = pair[1]
+    par = Rasterizer(one.camera, threads=threads)
+    models, poses = every_path_scene()
+    assert_same(one, par, models, poses)
+    assert par.timings.get("merge", 0.0) > 0.0          # the threaded path ran
+    # a mesh of a later group nearer than one of the first group: the merge must keep the nearer
+    front = [T_from_rotvec([0.0, 0.0, 0.0], [0.0, 0.0, 0.45]), T_from_rotvec([0.0, 0.0, 0.0], [0.0, 0.0, 0.35])]
+    assert_same(one, par, [box_model("a", (0.1, 0.1, 0.1)), box_model("b", (0.05, 0.05, 0.05))], front)
+
+
+def test_balanced_groups():
+    assert _balanced_groups([0, 1, 2], [65536, 40000, 42000], 2) == [[0], [2, 1]]
+    assert sorted(_balanced_groups([4, 7], [10, 10], 3)) == [[4], [7]]   # never an empty group
+    groups = _balanced_groups(list(range(6)), [5, 9, 2, 7, 1, 3], 2)
+    assert sorted(k for g in groups for k in g) == list(range(6)) and len(groups) == 2
+
+
 REAL_SETS = [["drill.obj", "cracker_box.obj", "mustard_bottle.stl"],
              ["nine_hole_peg.stl", "wrench.stl", "mustard_bottle.stl", "sugar_box.obj", "scissors.stl"]]
 
@@ -109,6 +145,7 @@ def test_same_output_on_real_meshes_and_open3d_iou_1(pair, names):
                                                          0.35 + 0.05 * k]) @ make_T(np.eye(3), -m.bbox_center_m)
                  for k, m in enumerate(models)]
         assert_same(old, new, models, poses)
+    assert_same(new, Rasterizer(new.camera, threads=2), models, poses)      # two threads, same bits
     res = new.render_objects(models, poses)
     depth, obj, _ = o3d_cast(new.camera, [posed(m, T) for m, T in zip(models, poses)])
     for k in range(len(models)):
