@@ -29,17 +29,36 @@ YCB_SCENES = {f"{word}_obj": FIVE_OBJ[:n] for word, n in (("three", 3), ("four",
 
 
 @contextlib.contextmanager
-def run_dir(prefix: str):
-    """A folder of this run's own outputs, ``bench/.data/<prefix>-XXXXXXXX``, created empty by this run and
-    removed with everything in it when the run ends (also on errors). Outputs go into new subfolders of it,
-    so a benchmark never deletes a folder it did not create: not an earlier run's, not a concurrent run's,
-    nor anything a user put under ``bench/.data``."""
-    DATA.mkdir(parents=True, exist_ok=True)
-    path = Path(tempfile.mkdtemp(prefix=f"{prefix}-", dir=DATA))
+def run_dir(prefix: str, root: Path | None = None):
+    """A folder of this run's own outputs, ``<root>/<prefix>-XXXXXXXX`` (``root`` defaults to ``bench/.data``),
+    created empty by this run and removed with everything in it when the run ends (also on errors). Outputs go
+    into new subfolders of it, so a benchmark never deletes a folder it did not create: not an earlier run's,
+    not a concurrent run's, nor anything a user put under ``bench/.data``."""
+    root = DATA if root is None else Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    path = Path(tempfile.mkdtemp(prefix=f"{prefix}-", dir=root))
     try:
         yield path
     finally:
         shutil.rmtree(path, ignore_errors=True)
+
+
+def file_create_ms(folder: Path, n: int = 300) -> float:
+    """Median time to create, write (3 kB), close and rename one new file in ``folder`` (ms): the filesystem's
+    own cost per output file, which dominates an export that writes a dozen small files per window on a slow
+    or monitored filesystem. Works in a fresh subfolder of ``folder`` and removes it."""
+    import statistics
+    import time
+
+    with run_dir("create_probe", folder) as d:
+        times, data = [], b"x" * 3000
+        for i in range(n):
+            t = time.perf_counter()
+            with open(d / f".{i}.tmp", "wb") as f:
+                f.write(data)
+            (d / f".{i}.tmp").rename(d / f"{i}.png")
+            times.append(time.perf_counter() - t)
+    return statistics.median(times) * 1e3
 
 
 def ensure_synth(folder: Path, cfg, what: str = "") -> Path:
