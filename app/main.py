@@ -94,6 +94,9 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     instead (the main window appears when a scene is opened from it; the screenshot is of the dataset view
     once every row is read).
     """
+    from evpose.app.startup import prepare_process
+
+    prepare_process()                     # malloc settings and the engine's imports, before Qt (app/memory.py)
     from PySide6 import QtCore, QtWidgets
 
     from evpose.app.main_window import MainWindow

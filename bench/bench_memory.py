@@ -235,6 +235,12 @@ def child(args) -> dict:
 
         tracemalloc.start(8)
     import numpy as np  # noqa: F401  (the first mark above is the interpreter alone)
+    try:                                  # as `evpose gui` starts: malloc settings, the engine before Qt
+        from evpose.app.startup import prepare_process
+    except ImportError:                   # a baseline older than app/startup.py
+        prepare_process = None
+    if prepare_process is not None:
+        prepare_process()
     from PySide6 import QtCore, QtWidgets
 
     import evpose

@@ -2,7 +2,9 @@
 
 Usage::
 
-    python bench/trajectory_gaps.py
+    python bench/trajectory_gaps.py [--json]
+
+``--json``: one JSON document of the figures on stdout (the table on stderr).
 
 Synthetic min-jerk moves (``evpose.core.sim.motion.make_motion``, trajectory B) at the E-POSE speeds, recorded at 250 Hz
 like the synthetic scenes. For every gap position, the k-1 samples inside a gap of k sampling steps are dropped,
@@ -41,14 +43,24 @@ def worst_error(rec: Trajectory, true: Trajectory, k: int) -> tuple[float, float
     return worst_mm, worst_deg
 
 
-def main() -> None:
-    print("worst interpolation error across a gap of k sampling steps (250 Hz poses, min-jerk moves)")
-    print(f"{'speed':>8} " + "".join(f"{f'k={k} ({4 * k} ms)':>22}" for k in GAPS))
+def main(argv=None) -> None:
+    as_json = "--json" in (sys.argv[1:] if argv is None else argv)
+    out = sys.stderr if as_json else sys.stdout
+    print("worst interpolation error across a gap of k sampling steps (250 Hz poses, min-jerk moves)", file=out)
+    print(f"{'speed':>8} " + "".join(f"{f'k={k} ({4 * k} ms)':>22}" for k in GAPS), file=out)
+    doc = {"benchmark": "trajectory_gaps", "data": "min-jerk moves of trajectory B, poses at 250 Hz, gap of k steps",
+           "gaps_steps": list(GAPS), "worst_error": {}}
     for speed in (0.1, 0.5, 1.0):
         cfg = SynthConfig(objects=("box",), trajectory="B", speed_mps=speed, duration_s=6.0, seed=1)
         m = make_motion(cfg, np.random.default_rng(1), 0.5)
         cells = [worst_error(m.recorded, m.true, k) for k in GAPS]
-        print(f"{speed:6.1f} m/s" + "".join(f"{f'{mm:.3f} mm {deg:.3f} deg':>22}" for mm, deg in cells))
+        print(f"{speed:6.1f} m/s" + "".join(f"{f'{mm:.3f} mm {deg:.3f} deg':>22}" for mm, deg in cells), file=out)
+        doc["worst_error"][f"{speed:g} m/s"] = [{"k": k, "mm": round(mm, 4), "deg": round(deg, 4)}
+                                                for k, (mm, deg) in zip(GAPS, cells)]
+    if as_json:
+        import json
+
+        print(json.dumps(doc))
 
 
 if __name__ == "__main__":
