@@ -1,8 +1,9 @@
 """Accuracy against run time of clock synchronisation, alignment score and pose refinement.
 
-Run ``python bench/accuracy.py`` (``--quick`` for one seed and fewer window counts). The full
-run also writes ``docs/accuracy.png`` and ``docs/accuracy.txt`` (``--no-docs`` to skip); the
-plot always goes to ``bench/out/accuracy.png``, the tables to stdout.
+Run ``python bench/accuracy.py`` (``--quick`` for one seed and fewer window counts; ``--sections joint`` or
+``--sections classic`` for one part; ``--json`` prints one JSON document of the joint section's figures on
+stdout, the tables then go to stderr). The full run also writes ``docs/accuracy.png`` and ``docs/accuracy.txt``
+(``--no-docs`` to skip); the plot always goes to ``bench/out/accuracy.png``, the tables to stdout.
 
 Run time on 2 cores: full ~13 min with the scenes cached, ~22 min the first time. The rendered scenes
 are made once with :mod:`core.synth` and cached in ``bench/.data/accuracy/`` (two at a time;
@@ -30,6 +31,10 @@ Sections
 4. **Score**: share of 10 ms windows where the true pose scores higher than a 5 mm / 3 degree
    error, for the kernel score, the truncated edge distance and the inside fraction; cost per
    window.
+6. **Joint** (issue 15, ``bench/accuracy_joint.py``): clock, poses and hand-eye fitted together on full-resolution
+   scenes with a clock error and 5 mm / 3 degree pose errors on every object, three simulator settings (contrast
+   threshold, background noise, texture), against the rate alone and the separate stages; a hand-eye table; the
+   run time on the 5-object scene.
 5. **Refinement** of 5 mm / 3 degree pose errors on half-resolution scenes (173x130, built-in
    boxes and, when ``../shared/assets/epose/models`` exists, the sugar / cracker box meshes),
    against the number of windows and per iteration, with run times; and the clock offset from
@@ -50,6 +55,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(Path(__file__).resolve().parent))       # the bench's own modules
 
 from evpose.core.data.camera import CameraModel  # noqa: E402
 from evpose.core.data.geometry import inv_T, pose_error  # noqa: E402
@@ -709,26 +715,73 @@ class _Tee:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer seeds and window counts")
+    ap.add_argument("--sections", default="classic,joint",
+                    help="comma list of: classic (sections 1-5), joint (section 6); default both")
+    ap.add_argument("--no-separate", action="store_true", help="joint section: skip the separate-stages rows")
+    ap.add_argument("--json", action="store_true",
+                    help="print one JSON document of the joint section's figures on stdout (tables on stderr)")
     ap.add_argument("--docs", action=argparse.BooleanOptionalAction, default=None,
                     help="also write docs/accuracy.png and docs/accuracy.txt (default: on for the full run)")
     args = ap.parse_args(argv)
-    docs = (not args.quick) if args.docs is None else args.docs
-    tee = _Tee(sys.stdout)
+    sections = {x.strip() for x in args.sections.split(",") if x.strip()}
+    docs = (not args.quick and sections >= {"classic", "joint"}) if args.docs is None else args.docs
+    real_stdout = sys.stdout
+    tee = _Tee(sys.stderr if args.json else sys.stdout)
     sys.stdout = tee
     try:
-        _run(args, docs, tee)
+        doc = _run(args, docs, tee, sections)
     finally:
-        sys.stdout = tee.stream
+        sys.stdout = tee.stream if not args.json else real_stdout
+    if args.json:
+        import json
+
+        print(json.dumps(doc, default=str))
 
 
-def _run(args, docs, tee):
+def _run(args, docs, tee, sections) -> dict:
     t_start = time.perf_counter()
+    doc = {"benchmark": "accuracy", "sections": sorted(sections)}
+    print(f"evpose accuracy benchmark - {platform.processor() or platform.machine()}, {os.cpu_count()} cpus; "
+          f"scenes cached in {DATA}")
+    path = None
+    if "classic" in sections:
+        path = _run_classic(args)
+    if "joint" in sections:
+        doc["joint"] = _run_joint(args)
+    if path is not None:
+        print(f"\nplot: {path}")
+    print(f"total {time.perf_counter() - t_start:.0f} s (scene generation excluded when cached)")
+    if docs and path is not None:
+        import shutil
+
+        DOCS.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, DOCS / "accuracy.png")
+        (DOCS / "accuracy.txt").write_text(tee.buf.getvalue())
+        print(f"docs: {DOCS / 'accuracy.png'}, {DOCS / 'accuracy.txt'}")
+    doc["runtime_s"] = time.perf_counter() - t_start
+    return doc
+
+
+def _run_joint(args) -> dict:
+    from accuracy_joint import bench_joint, joint_scene_jobs
+
+    offs = published_offsets()
+    pick = [offs[0], offs[len(offs) // 2], offs[-1], offs[len(offs) // 4], offs[3 * len(offs) // 4]]
+    scenes = ensure_scenes(joint_scene_jobs(args.quick, pick, MODELS, RENDER))
+    ycb = None
+    try:
+        from synth_scenes import ensure_ycb_scene
+
+        ycb = ensure_ycb_scene()
+    except FileNotFoundError:
+        print("  (the 5-object run-time scene needs the E-POSE meshes: skipped)")
+    return bench_joint(scenes, table, ycb, separate=not args.no_separate)
+
+
+def _run_classic(args):
     speeds = SPEEDS
     jobs, seeds = scene_jobs(args.quick)
     scenes = ensure_scenes(jobs)
-    print(f"evpose accuracy benchmark - {platform.processor() or platform.machine()}, {os.cpu_count()} cpus; "
-          f"scenes cached in {DATA}")
-
     sync_results, sync_variants = bench_sync(scenes, speeds, seeds)
     bench_slow(scenes, [n for n in jobs if n.startswith(("slow_", "slowfull_"))])
     bench_uncertainty()
@@ -744,16 +797,7 @@ def _run(args, docs, tee):
     windows = (6, 12, 24) if args.quick else (6, 12, 24, 48)
     refine_rows, refine_arr = bench_refine(ref_folders, windows)
     bench_offset_refine(ref_folders[:2])
-    path = plot(sync_results, sync_variants, speeds, skew_pts, refine_rows, refine_arr, windows)
-    print(f"\nplot: {path}")
-    print(f"total {time.perf_counter() - t_start:.0f} s (scene generation excluded when cached)")
-    if docs:
-        import shutil
-
-        DOCS.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(path, DOCS / "accuracy.png")
-        (DOCS / "accuracy.txt").write_text(tee.buf.getvalue())
-        print(f"docs: {DOCS / 'accuracy.png'}, {DOCS / 'accuracy.txt'}")
+    return plot(sync_results, sync_variants, speeds, skew_pts, refine_rows, refine_arr, windows)
 
 
 if __name__ == "__main__":

@@ -25,12 +25,15 @@ def check_score_args(args) -> None:
 
 
 def score_text(table, data: dict, window_ms: float) -> str:
-    """The text summary of a score table: per object its mean and worst window, then the windows without a pose."""
+    """The text summary of a score table: per object its mean, its low-evidence windows and its worst window
+    (with evidence), then the windows without a pose."""
     lines = [f"{len(table)} windows of {window_ms:g} ms scored in {table.runtime_s:.2f} s"]
     for n, s in data["summary"].items():
         ms = "n/a" if s["mean_score"] is None else f"{s['mean_score']:.3f}"
-        worst = "none" if s["worst_window"] is None else f"window {s['worst_window']} (t {s['worst_t_label_us']} us)"
-        lines.append(f"{n}: mean score {ms} over {s['n_valid']} valid windows; worst {worst}")
+        worst = (f"none ({s['worst_note']})" if s["worst_window"] is None
+                 else f"window {s['worst_window']} (t {s['worst_t_label_us']} us)")
+        lines.append(f"{n}: mean score {ms} over {s['n_valid']} valid windows ({s['n_low_evidence']} of them low "
+                     f"evidence); worst {worst}")
     for reason, k in data["unlabeled_reasons"].items():
         lines.append(f"no score (no pose) in {k} window(s): {reason}")
     return "\n".join(lines)
@@ -66,8 +69,9 @@ def add_align_parsers(subparsers) -> None:
                    help="also run the original E-POSE minima-matching method and report it under 'baseline'")
     s.add_argument("--curve", action="store_true", help="include the correlation curve in the JSON")
     s.add_argument("--edges", action="store_true",
-                   help="then refine offset (and skew) from event/edge alignment within 3 standard errors of the "
-                        "rate estimate (needs right object poses; reported under 'edges', applied with --apply)")
+                   help="then fit offset (and skew) together with the object poses from event/edge alignment, "
+                        "started at the rate estimate and kept within 3 of its standard errors (the final estimate is "
+                        "the top level of the JSON, each stage under 'stages'; --apply stores the clock)")
     s.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_sync)
@@ -76,13 +80,20 @@ def add_align_parsers(subparsers) -> None:
     s.add_argument("scene")
     s.add_argument("--object", help="only this object (default: all)")
     s.add_argument("--offset", action="store_true", help="also refine the clock offset (before the poses)")
-    s.add_argument("--windows", type=int, default=12, help="number of event windows used")
+    s.add_argument("--joint", action="store_true",
+                   help="fit the clock (offset, and skew when the windows pin it) and the object poses together "
+                        "(one document: 'clock', 'objects', 'hand_eye'; --apply stores all of it as one undo step)")
+    s.add_argument("--hand-eye", action="store_true",
+                   help="with --joint: also fit a hand-eye correction (camera frame) shared by all objects")
+    s.add_argument("--no-clock", action="store_true", help="with --joint: keep the clock in effect")
+    s.add_argument("--windows", type=int, default=None, help="number of event windows used (default 12; 24 with --joint)")
     s.add_argument("--json", action="store_true", help="print one JSON document")
     s.add_argument("--apply", action="store_true", help="store accepted results as corrections and save")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_refine)
 
-    s = subparsers.add_parser("score", help="alignment score of every window and object")
+    s = subparsers.add_parser("score", help="alignment score of every window and object, with its evidence "
+                              "(low-evidence windows are never the worst)")
     s.add_argument("scene")
     s.add_argument("--window-ms", type=float, default=10.0, help="window length (ms)")
     s.add_argument("--json", action="store_true", help="print one JSON document")

@@ -15,7 +15,7 @@ import argparse
 import sys
 
 from evpose.app.cli.errors import EXIT_PARTIAL, CliError, command
-from evpose.app.cli.export import objects_from_args, window_us_from_args
+from evpose.app.cli.export import format_options_from_args, objects_from_args, window_us_from_args
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 
@@ -92,7 +92,7 @@ def cmd_sync(args) -> int:
         return "-" if d.get("offset_us") is None else str(d["offset_us"])
 
     def edges(d):
-        e = d.get("edges")
+        e = (d.get("stages") or {}).get("edges")
         return "-" if not e else (str(e.get("offset_us")) if e.get("accepted") else "kept")
 
     return _finish(args, result, _table(result, [
@@ -155,7 +155,8 @@ def cmd_export(args) -> int:
         result = export_dataset(client, ds, args.format, args.out, progress=progress, window_us=window_us,
                                 window_events=args.window_events, label_at=args.label_at,
                                 only_verified=args.only_verified, include_stale=args.include_stale, objects=objects,
-                                margin_m=args.margin_mm * 1e-3, force=args.force)
+                                margin_m=args.margin_mm * 1e-3, force=args.force,
+                                format_options=format_options_from_args(args))
     return _finish(args, result, _table(result, [
         ("written", lambda d: str(d["written"])), ("complete", lambda d: str(d["skipped_complete"])),
         ("unlabeled", lambda d: str(d["unlabeled"])), ("windows", lambda d: str(d["windows_total"]))]))
@@ -232,6 +233,8 @@ def add_dataset_parser(subparsers) -> None:
     p.add_argument("--margin-mm", type=float, default=0.0, metavar="X", help="enlarge the 3D box by X mm")
     p.add_argument("--force", action="store_true",
                    help="replace earlier evpose exports of a different configuration (see evpose export)")
+    p.add_argument("--split", metavar="NAME", default=None,
+                   help="bop: split folder of the scenes, test (default), train or val (see evpose export)")
     p.set_defaults(jobs=1)
     _cluster_args(p)
     p.set_defaults(func=cmd_export)

@@ -28,3 +28,30 @@ def edges_line(r, label: str = "edges") -> str:
     sk = f"{r.skew_ppm:.2f} ppm " + (f"(fitted, ± {r.skew_std_ppm:.1f} ppm)" if r.skew_estimated else "(kept)")
     return (f"{label}: offset {r.offset_us} us{pm}, skew {sk}; {r.n_windows} windows, {r.runtime_s:.1f} s "
             "(assumes the object poses are right)")
+
+
+def joint_lines(r, label: str = "edges") -> list[str]:
+    """Lines for a joint refinement (:class:`~evpose.core.align.joint_result.JointResult`): the clock, then each
+    object's change and the hand-eye correction, with standard errors."""
+    if not r.accepted:
+        return [f"{label}: start kept ({r.reason})"]
+
+    def pm(x, unit, nd):
+        return " (not pinned)" if x is None or not math.isfinite(x) else f" ± {x:.{nd}f} {unit}"
+
+    lines = []
+    p = r.params
+    if p.clock:
+        sk = (f"{r.skew_ppm:.2f} ppm (fitted{pm(r.skew_std_ppm, 'ppm', 1)})" if r.skew_estimated
+              else f"{r.skew_ppm:.2f} ppm (kept)")
+        lines.append(f"{label}: offset {r.offset_us} us{pm(r.offset_std_us, 'us', 0)}, skew {sk}; "
+                     f"{r.n_windows} windows, {r.runtime_s:.1f} s (clock and poses fitted together)")
+    for name, o in r.objects.items():
+        lines.append(f"  {name}: dt {o.dt_mm:.2f} mm{pm(o.std_mm, 'mm', 2)}, dR {o.dR_deg:.2f} deg"
+                     f"{pm(o.std_deg, 'deg', 3)}")
+    for name, why in r.held.items():
+        lines.append(f"  {name}: {why}")
+    if p.hand_eye:
+        lines.append(f"  hand-eye: dt {r.hand_eye_dt_mm:.2f} mm{pm(r.hand_eye_std_mm, 'mm', 2)}, dR "
+                     f"{r.hand_eye_dR_deg:.3f} deg{pm(r.hand_eye_std_deg, 'deg', 3)}")
+    return lines

@@ -1,7 +1,13 @@
 """``evpose refine SCENE [--object NAME] [--offset] [--json] [--apply]``: object poses (and the clock
 offset) from event/edge alignment (DESIGN section 5: per object ``dR_deg``, ``dt_mm``,
 ``score_before``, ``score_after``, ``runtime_s``). ``--apply`` stores the accepted results as one undo step
-and saves (:func:`evpose.core.align.apply.save_applied`)."""
+and saves (:func:`evpose.core.align.apply.save_applied`).
+
+``--joint [--hand-eye] [--no-clock]``: clock, object poses (and a hand-eye correction) fitted together
+(:func:`evpose.core.align.joint_fit.refine_joint`); the document is the :class:`~evpose.core.align.joint_result.
+JointResult`: clock at the top (``offset_us``, ``skew_ppm``, their standard errors), ``objects`` (per object
+``dT_base``, ``dt_mm``, ``dR_deg`` and standard errors), ``held`` (objects kept for lack of evidence) and
+``hand_eye``; ``--apply`` stores all of it as one undo step."""
 from __future__ import annotations
 
 from evpose.app.cli.errors import CliError, command
@@ -68,16 +74,42 @@ def _refine(scene, args, out: dict, lines: list[str]) -> bool:
     return changed
 
 
+def _refine_joint(scene, args, out: dict, lines: list[str]) -> bool:
+    """``--joint``: one fit of clock, poses (and hand-eye); fills ``out`` and ``lines``; applies as one undo step
+    with ``--apply``."""
+    from evpose.app.cli.estimates import joint_lines
+    from evpose.core.align.apply import apply_joint_result
+    from evpose.core.align.joint_fit import refine_joint
+    from evpose.core.align.joint_result import JointParams
+    from evpose.core.document.history import History
+
+    names = object_names(scene, args) if args.object else None
+    params = JointParams(clock=not args.no_clock, objects=None if names is None else tuple(names),
+                         hand_eye=args.hand_eye, n_windows=args.windows or JointParams.n_windows)
+    with Progress("refine jointly", not args.quiet) as progress:
+        r = refine_joint(scene, params=params, progress=progress)
+    out.update(r.to_json())
+    lines.extend(joint_lines(r, "joint fit"))
+    return bool(args.apply) and apply_joint_result(History(scene.corrections), scene, r,
+                                                   "refine clock and poses from edges")
+
+
 @command("refine")
 def cmd_refine(args) -> int:
+    if args.windows is None:
+        args.windows = 24 if args.joint else 12
     check_windows(args)
+    if (args.hand_eye or args.no_clock) and not args.joint:
+        raise CliError("--hand-eye and --no-clock go with --joint")
+    if args.joint and args.offset:
+        raise CliError("--offset and --joint: --joint fits the clock already (--no-clock keeps it)")
     from evpose.core.data.scene import Scene
 
     scene = Scene.open(args.scene)
     out: dict = {"objects": {}}
     lines: list[str] = []
     try:
-        changed = _refine(scene, args, out, lines)
+        changed = (_refine_joint if args.joint else _refine)(scene, args, out, lines)
         out["applied"] = bool(args.apply and changed)
         if out["applied"]:
             from evpose.core.align.apply import save_applied

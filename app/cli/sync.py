@@ -1,12 +1,14 @@
 """``evpose sync SCENE [--edges] [--json] [--apply]``: the clock offset (and skew) from the event rate
-against the camera motion, then optionally from event/edge alignment (DESIGN section 5: the JSON's top
-level is the final rate estimate, the edge stage under ``"edges"``)."""
+against the camera motion, then optionally from event/edge alignment fitted jointly with the object poses
+(DESIGN section 5: the JSON's top level is the final estimate, each stage under ``"stages"``;
+:mod:`evpose.core.align.sync_run`). ``--apply`` stores the clock only; ``evpose refine --joint --apply`` stores
+the poses too."""
 from __future__ import annotations
 
 import math
 
 from evpose.app.cli.errors import CliError, command
-from evpose.app.cli.estimates import check_windows, edges_line
+from evpose.app.cli.estimates import check_windows, joint_lines
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 
@@ -42,7 +44,9 @@ def sync_text(res, corr, edges, data: dict, saved_line: str) -> str:
     else:
         text = f"no reliable estimate: {res.reason}"
     if edges is not None:
-        text += "\n" + edges_line(edges)
+        text += "\n" + "\n".join(joint_lines(edges))
+        if edges.accepted:
+            text += f"\nfinal: offset {data['offset_us']} us ({data['method']})"
     if "baseline" in data:
         b = data["baseline"]
         text += (f"\nbaseline (E-POSE minima matching): offset {b['offset_us']} us"

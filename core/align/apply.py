@@ -12,7 +12,7 @@ from evpose.core.align.refine_result import RefineResult
 from evpose.core.align.sync_result import SyncResult
 from evpose.core.document.estimates import apply_clock_estimate, clock_correction_for
 
-__all__ = ["apply_offset_result", "apply_sync", "clock_correction", "save_applied"]
+__all__ = ["apply_joint_result", "apply_offset_result", "apply_sync", "clock_correction", "save_applied"]
 
 
 def clock_correction(scene, result: SyncResult) -> tuple[int, float] | None:
@@ -39,6 +39,32 @@ def apply_offset_result(history, scene, result: RefineResult, text: str = "clock
         return False
     apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
     return True
+
+
+def apply_joint_result(history, scene, result, text: str = "refine clock and poses from edges", *,
+                       clock: bool = True, poses: bool = True) -> bool:
+    """Store an accepted joint refinement (:class:`~evpose.core.align.joint_result.JointResult`) through
+    ``history`` as one undo step: its clock (when fitted, and ``clock``), every fitted object's pose correction
+    and the hand-eye correction (when fitted; both with ``poses``). Returns whether anything was applied."""
+    from evpose.core.document.estimates import apply_pose_estimate
+
+    if not result.accepted:
+        return False
+    p = result.params
+    changed = False
+    with history.group(text):
+        if clock and p.clock:
+            apply_clock_estimate(history, scene, result.offset_us,
+                                 result.skew_ppm if result.skew_estimated else None, text)
+            changed = True
+        if poses:
+            for name, o in result.objects.items():
+                apply_pose_estimate(history, name, o.dT_base, text)
+                changed = True
+            if p.hand_eye and result.hand_eye_dT_cam is not None:
+                history.set(("hand_eye",), result.hand_eye_dT_cam, text=text)
+                changed = True
+    return changed
 
 
 def save_applied(scene, data: dict) -> str:

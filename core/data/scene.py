@@ -166,6 +166,12 @@ class Scene:
             self.events.close()
             del self.__dict__["events"]
 
+    def __enter__(self) -> "Scene":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     # ------------------------------------------------------------------ time
     @property
     def t_ref_us(self) -> int:

@@ -10,6 +10,7 @@ action                                      ``Session.changed`` emits (once)
 window length, representation, overlays,    ``Change("view", {the ViewState fields set})``
 display options
 visibility, selection                       ``Change("objects", {"hidden"} / {"selected"})``
+:meth:`~Session.set_preview` (on or off)    ``Change("view", {"preview"})``
 any document edit, undo, redo, restore,     ``Change("document", {"clock", "hand_eye",
 reload or merge of another program's save   "reviews", "object:<name>" it set})``
 save, no-op edit, unchanged view            nothing
@@ -63,6 +64,8 @@ class Session:
         self.view = ViewState(t_us=min(t0 + ViewState.window_us // 2, t1), grid_origin_us=t0)
         #: Why the autosave journal was ignored (damaged), or None.
         self.journal_problem: str | None = None
+        #: Corrections the views show instead of the document's (a proposal before Accept), or None: view state.
+        self.preview: Corrections | None = None
         #: One :class:`~evpose.core.signals.Change` per action (see the module docstring).
         self.changed: Signal[Change] = Signal(Change)
         self.history.changed.connect(self._history_changed)
@@ -153,6 +156,15 @@ class Session:
     def set_view_option(self, **changes) -> None:
         self._set_view(**changes)
 
+    def set_preview(self, corrections: Corrections | None) -> None:
+        """Show ``corrections`` (e.g. an estimate's proposal before Accept) in the frame and space-time views
+        instead of the document's; None shows the document again. View state: the document, its history and
+        its saves are untouched."""
+        if corrections is None and self.preview is None:
+            return
+        self.preview = None if corrections is None else corrections.copy()
+        self.changed.emit(Change("view", frozenset({"preview"})))
+
     # ------------------------------------------------------------------ document edits
     def set_offset_correction_us(self, offset_us: int, mergeable: bool = True) -> None:
         """Clock offset correction on top of the scene's prior (microseconds)."""
@@ -202,6 +214,15 @@ class Session:
         if name not in self.object_names:
             raise KeyError(name)
         apply_pose_estimate(self.history, name, dT_base, text)
+
+    def apply_joint_estimate(self, result, text: str = "clock and poses from edges", *, clock: bool = True,
+                             poses: bool = True) -> bool:
+        """Make an accepted joint refinement (:class:`~evpose.core.align.joint_result.JointResult`: clock, object
+        poses, hand-eye) the corrections in effect, one undo step
+        (:func:`evpose.core.align.apply.apply_joint_result`). Returns whether anything changed."""
+        from evpose.core.align.apply import apply_joint_result
+
+        return apply_joint_result(self.history, self.scene, result, text, clock=clock, poses=poses)
 
     # ------------------------------------------------------------------ review marks
     def add_review(self, status: str, t0_us: int | None = None, t1_us: int | None = None, note: str = "",
@@ -328,6 +349,8 @@ class Session:
 
     # ------------------------------------------------------------------ snapshots for workers
     def request(self) -> FrameRequest:
-        """A snapshot for the frame workers (:class:`~evpose.core.session.frames.FrameComputer`)."""
+        """A snapshot for the frame workers (:class:`~evpose.core.session.frames.FrameComputer`): the document's
+        corrections, or the preview's while one is set (:meth:`set_preview`)."""
+        corrections = self.scene.corrections if self.preview is None else self.preview
         # serials grow across sessions, so a late result of a closed scene is always stale
-        return FrameRequest(self.scene.with_corrections(self.scene.corrections.copy()), self.view, next(_SERIALS))
+        return FrameRequest(self.scene.with_corrections(corrections.copy()), self.view, next(_SERIALS))

@@ -21,10 +21,17 @@ class SceneRenderer:
 
     Objects have a base albedo with a 3D checker texture (two scales), the table a coarser,
     lower-contrast checker; Lambertian shading under a fixed directional light in the base frame.
+    ``texture`` varies the objects' texture: ``"checker"`` (default), ``"fine"`` (cells a third of the size,
+    many more texture events inside the silhouettes) or ``"plain"`` (no checker: shading only).
     """
 
+    TEXTURES = ("checker", "fine", "plain")
+
     def __init__(self, camera: CameraModel, models: list[ObjectModel], T_base_obj: list[np.ndarray],
-                 rng: np.random.Generator, light_base=(0.3, 0.5, 1.0)):
+                 rng: np.random.Generator, light_base=(0.3, 0.5, 1.0), texture: str = "checker"):
+        if texture not in self.TEXTURES:
+            raise ValueError(f"texture: expected one of {self.TEXTURES}, got {texture!r}")
+        self.texture = texture
         self.camera = camera
         self.raster = Rasterizer(camera)
         xy = camera.pixel_rays()[0].reshape(-1, 2)
@@ -71,8 +78,12 @@ class SceneRenderer:
                 tex = self.tex[k]
                 p_obj = (p_cam - T[:3, 3]) @ T[:3, :3]  # inv(T_cam_obj) applied to camera points
                 p_tex = p_obj @ tex["R"].T.astype(np.float32) + tex["phase"].astype(np.float32)
-                albedo = tex["albedo"] * (0.55 + 0.9 * _checker(p_tex, tex["cell"])) * (
-                    0.9 + 0.2 * _checker(p_tex, tex["cell"] / 3.1))
+                cell = tex["cell"] / 3.0 if self.texture == "fine" else tex["cell"]
+                if self.texture == "plain":
+                    albedo = np.full(len(pix), tex["albedo"], dtype=np.float32)
+                else:
+                    albedo = tex["albedo"] * (0.55 + 0.9 * _checker(p_tex, cell)) * (
+                        0.9 + 0.2 * _checker(p_tex, cell / 3.1))
                 n = self.normals[k][face[pix]] @ T[:3, :3].T
                 lambert = n @ light_cam
                 # visible back faces of open meshes: flip the normal towards the camera

@@ -58,6 +58,7 @@ class _World:
     clock_true: ClockModel
     renderer: SceneRenderer
     sim: EventSimulator
+    hand_eye_error: np.ndarray        # camera mounting error E written into the trajectory (identity: none)
 
 
 def _world(cfg: SynthConfig) -> _World:
@@ -70,9 +71,13 @@ def _world(cfg: SynthConfig) -> _World:
     e0 = motion.recorded.t_first_us + int(margin_s * 1e6) - int(cfg.offset_us)
     e1 = e0 + int(round(cfg.duration_s * 1e6))
     clock_true = ClockModel(int(cfg.offset_us), float(cfg.skew_ppm), e0)
-    renderer = SceneRenderer(camera, models, T_true, rng)
+    renderer = SceneRenderer(camera, models, T_true, rng, texture=cfg.texture)
     sim = EventSimulator(camera.width, camera.height, cfg.sensor, rng)
-    return _World(rng, camera, models, T_true, motion, e0, e1, clock_true, renderer, sim)
+    E = np.eye(4)
+    if cfg.hand_eye_error_mm or cfg.hand_eye_error_deg:      # its own generator: the other draws stay as they were
+        E = inject_pose_error(np.eye(4), cfg.hand_eye_error_mm, cfg.hand_eye_error_deg,
+                              np.random.default_rng([cfg.seed, 7919]))
+    return _World(rng, camera, models, T_true, motion, e0, e1, clock_true, renderer, sim, E)
 
 
 def generate(out_dir, cfg: SynthConfig, *, overwrite: bool = False,
@@ -128,7 +133,10 @@ def _write_scene(tmp: Path, out_dir: Path, cfg: SynthConfig, world: _World) -> d
     ``tmp`` of ``out_dir``; returns the injected error per object."""
     import trimesh
 
-    world.motion.recorded.save_csv(tmp / "trajectory.csv")
+    recorded = world.motion.recorded
+    if cfg.hand_eye_error_mm or cfg.hand_eye_error_deg:
+        recorded = _with_mounting_error(recorded, world.hand_eye_error)
+    recorded.save_csv(tmp / "trajectory.csv")
     specs, injected = [], {}
     for m, T in zip(world.models, world.T_true):
         mesh_path = tmp / "models" / f"{m.name}.ply"
@@ -145,6 +153,19 @@ def _write_scene(tmp: Path, out_dir: Path, cfg: SynthConfig, world: _World) -> d
     return injected
 
 
+def _with_mounting_error(traj, E: np.ndarray):
+    """The trajectory ``T_base_cam @ E`` (a camera mounted off by ``E``, camera frame): the correction that
+    undoes it is ``dT_cam = inv(E)``."""
+    from scipy.spatial.transform import Rotation
+
+    from evpose.core.data.trajectory import Trajectory
+
+    R = Rotation.from_quat(traj.quats_xyzw).as_matrix()
+    pos = traj.positions_m + np.einsum("nij,j->ni", R, E[:3, 3])
+    q = Rotation.from_matrix(R @ E[:3, :3]).as_quat()
+    return Trajectory(traj.t_us.copy(), pos, q, traj.source, max_gap_us=traj.max_gap_us)
+
+
 def _ground_truth(cfg: SynthConfig, world: _World, injected: dict, n_events: int, frames_rendered: int,
                   t_start: float) -> dict:
     """The content of ``ground_truth.json``: true clock and poses, what was injected, the moves, the
@@ -157,7 +178,9 @@ def _ground_truth(cfg: SynthConfig, world: _World, injected: dict, n_events: int
                     for m, T in zip(world.models, world.T_true)},
         "injected": {"offset_us": int(cfg.offset_us), "skew_ppm": float(cfg.skew_ppm),
                      "pose_error_mm": float(cfg.pose_error_mm), "pose_error_deg": float(cfg.pose_error_deg),
-                     "objects": injected},
+                     "hand_eye_error_mm": float(cfg.hand_eye_error_mm),
+                     "hand_eye_error_deg": float(cfg.hand_eye_error_deg), "objects": injected},
+        "hand_eye": {"dT_cam": np.linalg.inv(world.hand_eye_error).tolist()},
         "moving_segments_pose_us": world.motion.segments,
         "generator": {**{k: v for k, v in asdict(cfg).items() if k not in ("sensor", "camera")},
                       "objects": list(cfg.objects), "sensor": asdict(cfg.sensor), "camera": world.camera.to_dict()},

@@ -19,7 +19,10 @@ class SynthConfig:
     skew_ppm: float = 0.0
     pose_error_mm: float = 0.0
     pose_error_deg: float = 0.0
+    hand_eye_error_mm: float = 0.0   # camera mounting error written into the trajectory (camera frame)
+    hand_eye_error_deg: float = 0.0
     seed: int = 0
+    texture: str = "checker"         # objects' texture: "checker", "fine" or "plain" (sim.renderer.SceneRenderer)
     pose_rate_hz: float = 250.0      # the recorded trajectory's sample rate
     motion_rate_hz: float = 4000.0   # the rendered (true) motion's sample rate: smooth at the event time scale
     max_px_per_frame: float = 1.0
@@ -34,6 +37,8 @@ class SynthConfig:
             raise ValueError(f"speed: expected 0 < speed <= 3 m/s, got {self.speed_mps}")
         if not (0 < self.duration_s <= 600):
             raise ValueError(f"duration: expected 0 < duration <= 600 s, got {self.duration_s}")
+        if self.texture not in ("checker", "fine", "plain"):
+            raise ValueError(f"texture: expected 'checker', 'fine' or 'plain', got {self.texture!r}")
         if not self.objects:
             raise ValueError("objects: at least one object is needed")
         if len(set(self.objects)) != len(self.objects):

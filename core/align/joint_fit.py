@@ -1,0 +1,363 @@
+"""Joint refinement from edges: the clock (offset, and skew when the windows pin it), the object poses and,
+optionally, a hand-eye correction, fitted together on the edge objective (:mod:`evpose.core.align.edges`).
+
+Why joint: a clock offset shifts each window's edges by the image velocity times the offset, a pose error by an
+amount fixed in the base frame, and a hand-eye error by an amount fixed in the camera. Each separate estimate
+takes the others as right, so a 5 mm / 3 degree pose error shifted the edge clock by 1.6-4.3 ms, and the clock
+error in turn biased the poses. Fitted together, each parameter is pulled only by what it alone explains: the
+clock by how the misfit changes with the image velocity (moving vs slow windows, direction changes), the
+objects by what stays put in the base frame, the hand-eye by what stays put in the camera across viewpoints.
+
+Method: coarse to fine over the kernel widths (as the pose refinement). At each width the events are associated
+with their nearest visible edge sample at the current estimate; the parameter step is the maximiser of the
+objective with that association fixed and the distances linearised (:func:`evpose.core.align.joint_solve.solve_step`:
+analytic derivatives, :mod:`evpose.core.align.joint_model`), and it is kept only when it raises the objective with
+a fresh association (full, half or quarter step). Joint optimisation rather than alternation: alternating the
+clock and the poses converges slowly along the directions where they trade off (an offset on a straight move
+looks like a shift along the motion) and its per-stage standard errors ignore that trade-off; the joint
+curvature carries it.
+
+Standard errors are the cluster-robust sandwich over windows (:func:`evpose.core.align.joint_solve.sandwich`).
+The skew is kept when its standard error is at most :data:`SKEW_MAX_STD_PPM` or its change stands out by
+:data:`SKEW_SIGMAS` standard errors; otherwise the start's skew is kept and the finest level is re-solved without it.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from evpose.core.align.edges import EdgeSetup, _beta
+from evpose.core.align.event_windows import choose_windows
+from evpose.core.align.joint_model import (HAND_EYE_RADIUS_M, HandEyeScene, JointState, gather, he_delta,
+                                           jacobian, set_window_clock)
+from evpose.core.align.joint_result import JointParams, JointResult, ObjectFit
+from evpose.core.align.joint_solve import Layout, kernel_derivs, sandwich, solve_step
+from evpose.core.align.pose_refine import _pose_change, delta_T
+from evpose.core.align.refine_result import DEFAULT_SIGMAS_PX
+from evpose.core.align.scene_proxy import scene_motion_proxy
+from evpose.core.align.clock_refine import offset_window_us
+from evpose.core.data.events import Cancelled
+from evpose.core.data.geometry import inv_T
+
+__all__ = ["MIN_OBJECT_EVENTS", "MIN_OBJECT_WINDOWS", "SKEW_LEVELS", "SKEW_MAX_STD_PPM", "SKEW_SIGMAS", "refine_joint"]
+
+#: The fitted skew is kept when its standard error is at most this (ppm) or its change exceeds SKEW_SIGMAS of it.
+SKEW_MAX_STD_PPM = 15.0
+SKEW_SIGMAS = 3.0
+#: An object is fitted only when at least MIN_OBJECT_WINDOWS windows hold MIN_OBJECT_EVENTS events near its
+#: edges at the coarsest width: with fewer, its pose is pinned by a handful of viewpoints (an object mostly out of
+#: view) and the windows' spread says nothing of its uncertainty; it is held at its start and reported.
+MIN_OBJECT_WINDOWS = 4
+MIN_OBJECT_EVENTS = 30
+#: The skew is free at this many of the finest kernel widths only: a skew of 10 ppm moves the clock by 25 µs
+#: over 2.5 s, which the coarse widths cannot see, while a free skew there trades off against the pose errors.
+SKEW_LEVELS = 2
+
+
+class _Fit:
+    """The state of one joint fit: the scene seen through the current hand-eye, the event windows, the current
+    estimate and the last fresh association."""
+
+    def __init__(self, scene, names, windows, state: JointState, p: JointParams):
+        self.scene, self.names, self.p = scene, names, p
+        self.view = HandEyeScene(scene, state.H)
+        self.setup = EdgeSetup(self.view, names, windows, state.clock(), p.refine_params())
+        self.K = scene.camera.K
+        self.state = state
+        self.radii = np.array([me.radius for me in self.setup.edges])
+        self._clock_key = None
+        self.contours = None             # the last contours (their z-buffers serve the next look)
+        self._looked = None              # (state, contours) of the last look
+
+    def centres(self, state: JointState) -> np.ndarray:
+        return np.array([T[:3, :3] @ me.centre + T[:3, 3] for T, me in zip(state.T_bo, self.setup.edges)])
+
+    def poses(self, state: JointState) -> None:
+        """The windows' per-event camera poses at ``state`` (:func:`set_window_clock`), when its clock or
+        hand-eye differs from the last call's."""
+        self.view.H = state.H
+        clock = state.clock()
+        key = (clock.offset_us, clock.skew_ppm, state.H.tobytes())
+        if key != self._clock_key:
+            for w in self.setup.wins:
+                set_window_clock(self.view, w, clock)
+            self._clock_key = key
+
+    def look(self, state: JointState, previous=None):
+        """The visible contour samples of every window at ``state`` (``previous`` contours lend their
+        z-buffers); the last state's are kept (they do not depend on the kernel width)."""
+        if self._looked is not None and self._looked[0] is state:
+            return self._looked[1]
+        self.poses(state)
+        contours = self.setup.contours(state.T_bo, state.clock(), previous=previous)
+        self._looked = (state, contours)
+        return contours
+
+    def data(self, state: JointState, contours, sigma: float):
+        """The events associated with ``contours``' samples at ``state`` (samples are points on the meshes:
+        contours of a nearby state serve a trial step)."""
+        self.poses(state)
+        return gather(self.setup, contours, state, self.p.band_sigmas * sigma, self.p.n_sub)
+
+    def value(self, d, sigma: float, beta: float) -> float:
+        """The objective: kernel sum over the associated events per valid event of the windows."""
+        if d is None:
+            return float("nan")
+        k, _, _ = kernel_derivs(d.s, d.outer, sigma, beta)
+        return float(k.sum()) / d.n_events
+
+    def apply(self, state: JointState, delta: np.ndarray) -> JointState:
+        """The state moved by a full parameter vector ``delta`` (layout of :class:`Layout`)."""
+        out = state.copy()
+        out.offset_us += float(delta[0])
+        out.skew_ppm += float(delta[1])
+        if np.any(delta[2:8]):
+            out.H = state.H @ he_delta(delta[2:8])
+        centres = self.centres(state)
+        for i in range(len(state.T_bo)):
+            x = delta[8 + 6 * i: 14 + 6 * i]
+            if np.any(x):
+                out.T_bo[i] = delta_T(x, centres[i], self.radii[i]) @ state.T_bo[i]
+        return out
+
+
+def _layout(n: int, p: JointParams, names, skew_free: bool, held=()) -> Layout:
+    objs = [(p.objects is None or nm in p.objects) and nm not in held for nm in names]
+    return Layout(n, p.clock, skew_free, p.hand_eye, objs)
+
+
+def _held_objects(fit: _Fit, sigma: float, p: JointParams, names) -> dict:
+    """Objects to hold at their start for lack of evidence (:data:`MIN_OBJECT_WINDOWS`), with the reason."""
+    d = fit.data(fit.state, fit.look(fit.state), sigma)
+    held = {}
+    for i, name in enumerate(names):
+        if p.objects is not None and name not in p.objects:
+            continue
+        n_win = 0 if d is None else int(np.sum(np.bincount(d.win[d.obj == i], minlength=len(fit.setup.wins))
+                                               >= MIN_OBJECT_EVENTS))
+        if n_win < MIN_OBJECT_WINDOWS:
+            held[name] = (f"too little evidence: {n_win} of {len(fit.setup.wins)} windows hold {MIN_OBJECT_EVENTS}+ "
+                          f"events near its edges (at least {MIN_OBJECT_WINDOWS} needed); pose kept")
+    return held
+
+
+def _prior(lay: Layout, p: JointParams, radii: np.ndarray, n_assoc: int) -> np.ndarray:
+    """Per-parameter prior weights (0 = none). With the hand-eye and objects both free, the object corrections
+    get a zero-mean prior of ``p.prior_obj_mm`` / ``p.prior_obj_deg`` worth ``p.prior_weight`` of the associated
+    events: it decides only along directions the events cannot tell apart (a common shift of every object against
+    a hand-eye translation on a trajectory that does not rotate)."""
+    prior = np.zeros(lay.n)
+    if not (p.hand_eye and lay.free[8:].any()):
+        return prior
+    w = p.prior_weight * n_assoc
+    for i, r in enumerate(radii):
+        prior[8 + 6 * i: 11 + 6 * i] = w / p.prior_obj_mm ** 2
+        unit_deg = math.degrees(1e-3 / r)                        # degrees per rotation unit
+        prior[11 + 6 * i: 14 + 6 * i] = w / (p.prior_obj_deg / unit_deg) ** 2
+    return prior * lay.free
+
+
+def _bounds(fit: _Fit, d, sigma: float, p: JointParams, n: int) -> np.ndarray:
+    """Largest change of each parameter in one step: what moves the edges by ``p.step_sigmas * sigma`` px
+    (objects and hand-eye at their median depth; the clock at the associated events' median image speed), so a
+    direction the events barely see (rotation about a symmetry axis) cannot run away within a step."""
+    move = p.step_sigmas * sigma
+    z = np.median(d.P_c[:, 2]) if len(d.s) else 0.5
+    px_per_mm = float(fit.K[0, 0]) * 1e-3 / max(float(z), 0.05)
+    speed = np.median(np.linalg.norm(d.v[:, :2], axis=1) / np.maximum(d.P_c[:, 2], 0.05)) * float(fit.K[0, 0])
+    b = np.full(n, move / px_per_mm)
+    b[:2] = np.inf
+    return b
+
+
+def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointResult, total: np.ndarray,
+           t_start: float, progress, cancel):
+    """Fit at one kernel width: per outer iteration the contours and the association at the current state, and
+    the step that maximises the objective with them held fixed (bounded per parameter by :func:`_bounds`). The
+    level's result is kept when it raises the level's objective with a fresh association, else the level's start
+    is restored. Returns the level's beta, or None without events."""
+    state0, total0 = fit.state, total.copy()
+    beta, j0 = None, None
+    for k in range(p.outer_per_level + 1):
+        if cancel is not None and cancel():
+            raise Cancelled("joint refinement cancelled")
+        contours = fit.contours = fit.look(fit.state, previous=fit.contours)
+        d = fit.data(fit.state, contours, sigma)
+        if d is None:
+            return beta
+        if beta is None:
+            beta = _beta(d.s, d.outer, sigma)
+        j = fit.value(d, sigma, beta)
+        if j0 is None:
+            j0 = j
+        if k == p.outer_per_level:
+            break
+        rows = d.slices(len(fit.state.T_bo))
+        J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
+        prior = _prior(lay, p, fit.radii, len(d.s))
+        delta, f0, f1, move = solve_step(d.s, J, rows, d.outer, sigma, beta, lay, p.step_sigmas * sigma, prior, total,
+                                   bounds=_bounds(fit, d, sigma, p, lay.n) if p.step_bounds else None)
+        if not f1 > f0:
+            break
+        fit.state = fit.apply(fit.state, delta)
+        total += delta
+        result.iterations += 1
+        result.trace.append({"iteration": result.iterations, "sigma_px": float(sigma), "objective": j,
+                             "offset_us": fit.state.offset_us, "skew_ppm": fit.state.skew_ppm,
+                             "n_events": int(len(d.s)), "elapsed_s": time.perf_counter() - t_start})
+        if progress is not None:
+            progress(None, f"sigma {sigma:.2f} px: objective {j:.4f}, offset {fit.state.offset_us:.0f} us")
+        if move < p.converged_move * sigma:            # converged at this width
+            break
+    if not j >= j0:                                     # the level made things worse: back to its start
+        fit.state = state0
+        total[:] = total0
+        fit.contours = None
+    return beta
+
+
+def _covariance(fit: _Fit, sigma: float, beta: float, lay: Layout, p: JointParams, total: np.ndarray):
+    """Standard errors at the final state (finest width): ``(cov, data)``."""
+    contours = fit.look(fit.state, previous=fit.contours)
+    d = fit.data(fit.state, contours, sigma)
+    if d is None:
+        return None, None
+    J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
+    rows = d.slices(len(fit.state.T_bo))
+    return sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, _prior(lay, p, fit.radii, len(d.s))), (d, J)
+
+
+def _choose(scene, p: JointParams, clock, names, windows):
+    if windows is not None:
+        return list(windows)
+    proxy = scene_motion_proxy(scene)
+    window_us = offset_window_us(proxy, p.window_us) if p.clock else p.window_us
+    return choose_windows(scene, p.n_windows, window_us, names, clock, proxy=proxy)
+
+
+def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, windows=None, progress=None,
+                 cancel=None) -> JointResult:
+    """Refine the clock, the object poses and (with ``params.hand_eye``) a hand-eye correction together from
+    event/edge alignment.
+
+    Parameters
+    ----------
+    scene : evpose.core.data.scene.Scene
+        Its corrections in effect are the start (poses, hand-eye); ``clock`` overrides its clock (e.g. the
+        event-rate estimate).
+    params : JointParams
+        What is free (``clock``, ``skew``, ``objects``, ``hand_eye``) and the knobs.
+    windows : list of (t0_us, t1_us), optional
+        Default :func:`~evpose.core.align.event_windows.choose_windows` (lengthened on slow sequences).
+    progress : callable, optional
+        ``progress(fraction, message)``; ``cancel() -> bool`` True raises
+        :class:`~evpose.core.data.events.Cancelled`.
+
+    Returns
+    -------
+    JointResult
+        Totals to store (clock, each object's ``dT_base``, the hand-eye ``dT_cam``), their standard errors,
+        objective before / after, and whether the fit improved the start (``accepted``).
+    """
+    t_start = time.perf_counter()
+    clock0 = clock or scene.clock
+    names = scene.object_names
+    T_start = [scene.T_base_obj(n) for n in names]
+    state = JointState(float(clock0.offset_us), float(clock0.skew_ppm), int(clock0.t_ref_us), np.eye(4),
+                       [T.copy() for T in T_start])
+    result = JointResult(params=params, offset_us=int(clock0.offset_us), skew_ppm=float(clock0.skew_ppm),
+                         hand_eye_dT_cam=scene.corrections.hand_eye_delta.copy())
+    windows = _choose(scene, params, clock0, names, windows)
+    result.n_windows = len(windows)
+    if not windows:
+        result.reason = "no window with camera motion and an object in view"
+        result.runtime_s = time.perf_counter() - t_start
+        return result
+    fit = _Fit(scene, names, windows, state, params)
+    fx = float(scene.camera.K[0, 0])
+    sigmas = tuple(params.sigmas_px) if params.sigmas_px else tuple(s * fx / 146.0 for s in DEFAULT_SIGMAS_PX)
+    skew_free = params.clock and params.skew in ("fit", "auto")
+    total = np.zeros(8 + 6 * len(names))
+    beta = None
+    held = _held_objects(fit, sigmas[0], params, names)
+    for name in held:
+        result.held[name] = held[name]
+    lay = _layout(len(names), params, names, skew_free, held)
+    coarse = _layout(len(names), params, names, False, held)    # the skew waits for the fine levels
+    for level, sigma in enumerate(sigmas):
+        if progress is not None:
+            progress(level / (len(sigmas) + 1), f"sigma {sigma:.2f} px")
+        fine = level >= len(sigmas) - SKEW_LEVELS
+        b = _level(fit, sigma, lay if fine else coarse, params, result, total, t_start, progress, cancel)
+        if b is None:
+            result.reason = "no events near the objects' edges"
+            break
+        beta = b
+    cov, _ = _covariance(fit, sigmas[-1], beta, lay, params, total) if beta is not None else (None, None)
+    if cov is not None and params.clock and params.skew == "auto":
+        sk = math.sqrt(cov[1, 1]) if np.isfinite(cov[1, 1]) else math.inf
+        if not (sk <= SKEW_MAX_STD_PPM or abs(total[1]) > SKEW_SIGMAS * sk):
+            fit.state.skew_ppm = float(clock0.skew_ppm)          # not pinned: the start's skew, finest level again
+            total[1] = 0.0
+            lay = _layout(len(names), params, names, False, result.held)
+            _level(fit, sigmas[-1], lay, params, result, total, t_start, progress, cancel)
+            cov, _ = _covariance(fit, sigmas[-1], beta, lay, params, total)
+            result.skew_std_ppm = sk
+        else:
+            result.skew_estimated = True
+    elif params.clock and params.skew == "fit":
+        result.skew_estimated = True
+    _finish(scene, fit, result, T_start, clock0, sigmas[-1], beta, cov, lay, total)
+    result.runtime_s = time.perf_counter() - t_start
+    if progress is not None:
+        progress(1.0, "done" if result.accepted else result.reason)
+    return result
+
+
+def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta, cov, lay: Layout, total):
+    """Compare the fit with the start on the same windows at the finest width (fresh association each, the
+    start's beta) and fill the result's totals and standard errors."""
+    start = JointState(float(clock0.offset_us), float(clock0.skew_ppm), int(clock0.t_ref_us), np.eye(4),
+                       [T.copy() for T in T_start])
+    d0 = fit.data(start, fit.look(start), sigma)
+    if d0 is None or beta is None:
+        result.reason = result.reason or "no events near the objects' edges"
+        return
+    beta0 = _beta(d0.s, d0.outer, sigma)
+    j0 = fit.value(d0, sigma, beta0)
+    end = fit.state
+    d1 = fit.data(end, fit.look(end), sigma)
+    j1 = fit.value(d1, sigma, beta0)
+    result.objective_before, result.objective_after = j0, j1
+    if not (np.isfinite(j1) and (not np.isfinite(j0) or j1 > j0)):
+        result.reason = "the fit did not improve the objective; start kept"
+        return
+    result.accepted = True
+    sd = np.sqrt(np.where(np.isfinite(np.diag(cov)), np.diag(cov), np.inf)) if cov is not None else np.full(lay.n, np.inf)
+    if lay.free[0]:
+        result.offset_us = int(round(end.offset_us))
+        result.offset_std_us = float(sd[0])
+        result.skew_ppm = float(end.skew_ppm)
+        if lay.free[1]:
+            result.skew_std_ppm = float(sd[1])
+    if lay.free[2:8].any():
+        result.hand_eye_dT_cam = scene.corrections.hand_eye_delta @ end.H
+        ang, moved = _pose_change(end.H, np.zeros(3))
+        result.hand_eye_dR_deg, result.hand_eye_dt_mm = ang, float(np.linalg.norm(end.H[:3, 3]) * 1e3)
+        result.hand_eye_std_mm = float(np.sqrt(np.sum(sd[2:5] ** 2)))
+        result.hand_eye_std_deg = float(np.sqrt(np.sum(sd[5:8] ** 2)) * math.degrees(1e-3 / HAND_EYE_RADIUS_M))
+    for i, name in enumerate(fit.names):
+        if not lay.free[8 + 6 * i]:
+            continue
+        if not np.all(np.isfinite(sd[8 + 6 * i: 14 + 6 * i])):
+            result.held[name] = "the events do not pin its pose (a direction of it leaves the objective flat); pose kept"
+            continue
+        T_man = scene.manifest.object(name).T_base_obj
+        c0 = T_start[i][:3, :3] @ fit.setup.edges[i].centre + T_start[i][:3, 3]
+        ang, moved = _pose_change(end.T_bo[i] @ inv_T(T_start[i]), c0)
+        s = sd[8 + 6 * i: 14 + 6 * i]
+        result.objects[name] = ObjectFit(
+            dT_base=end.T_bo[i] @ inv_T(T_man), dt_mm=moved, dR_deg=ang, std_mm=float(np.sqrt(np.sum(s[:3] ** 2))),
+            std_deg=float(np.sqrt(np.sum(s[3:] ** 2)) * math.degrees(1e-3 / fit.radii[i])))

@@ -1,0 +1,128 @@
+"""The knobs (:class:`JointParams`) and the outcome (:class:`JointResult`) of the joint refinement of clock, object
+poses and hand-eye from edges (:mod:`evpose.core.align.joint_fit`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evpose.core.align.refine_result import RefineParams
+
+__all__ = ["JointParams", "JointResult", "ObjectFit"]
+
+#: Coarse-to-fine kernel widths of the joint fit (px at half DAVIS346 resolution, scaled by fx / 146).
+JOINT_SIGMAS_PX = (1.5, 0.8, 0.45, 0.25, 0.14, 0.08)
+
+
+@dataclass(frozen=True)
+class JointParams:
+    """What the joint fit estimates, and its knobs.
+
+    ``clock``: fit the offset; ``skew``: ``"auto"`` (fitted, kept when the windows pin it), ``"fit"`` (always
+    kept) or ``"fixed"``; ``objects``: names of the objects whose poses are fitted (None: all, empty: none);
+    ``hand_eye``: fit a hand-eye correction (camera frame) shared by all objects. With both the hand-eye and
+    objects free, the object corrections get a zero-mean prior (``prior_obj_mm`` / ``prior_obj_deg``, worth
+    ``prior_weight`` of the associated events) that decides only what the events cannot tell apart.
+    """
+
+    clock: bool = True
+    skew: str = "auto"
+    objects: tuple | None = None
+    hand_eye: bool = False
+    n_windows: int = 24
+    window_us: int = 10_000
+    max_events: int = 12_000
+    sigmas_px: tuple | None = JOINT_SIGMAS_PX
+    outer_per_level: int = 4
+    step_sigmas: float = 1.0
+    band_sigmas: float = 3.0
+    spacing_px: float = 0.5
+    n_sub: int = 3
+    converged_move: float = 0.1
+    step_bounds: bool = True
+    prior_obj_mm: float = 5.0
+    prior_obj_deg: float = 3.0
+    prior_weight: float = 0.01
+
+    def __post_init__(self):
+        if self.skew not in ("auto", "fit", "fixed"):
+            raise ValueError(f"skew: expected 'auto', 'fit' or 'fixed', got {self.skew!r}")
+        if self.objects is not None and not isinstance(self.objects, tuple):
+            object.__setattr__(self, "objects", tuple(self.objects))
+
+    def refine_params(self) -> RefineParams:
+        """The shared edge-setup knobs in the form :class:`~evpose.core.align.edges.EdgeSetup` reads."""
+        return RefineParams(n_windows=self.n_windows, window_us=self.window_us, max_events=self.max_events,
+                            spacing_px=self.spacing_px, band_sigmas=self.band_sigmas, n_sub=self.n_sub)
+
+
+@dataclass
+class ObjectFit:
+    """One object's result: the total correction to store (``T_base_obj' = dT_base @ T_base_obj`` of the
+    manifest), the change found (rotation deg, displacement of the centre mm) and their standard errors."""
+
+    dT_base: np.ndarray
+    dt_mm: float
+    dR_deg: float
+    std_mm: float
+    std_deg: float
+
+    def to_json(self) -> dict:
+        return {"dT_base": np.asarray(self.dT_base).tolist(), "dt_mm": float(self.dt_mm),
+                "dR_deg": float(self.dR_deg), "dt_std_mm": _num(self.std_mm), "dR_std_deg": _num(self.std_deg)}
+
+
+def _num(x):
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+@dataclass
+class JointResult:
+    """Outcome of :func:`evpose.core.align.joint_fit.refine_joint` (totals, not increments).
+
+    ``offset_us`` / ``skew_ppm``: the clock to use (the start's when not fitted or not accepted);
+    ``offset_std_us`` / ``skew_std_ppm`` their standard errors (cluster-robust over windows); ``skew_estimated``:
+    the fitted skew was kept. ``objects``: per fitted object an :class:`ObjectFit`; ``held``: objects left at their
+    start for lack of evidence, with the reason. ``hand_eye_dT_cam``: the total
+    hand-eye correction (``T_base_cam' = T_base_cam @ dT_cam``) with its change and standard errors.
+    """
+
+    params: JointParams
+    offset_us: int
+    skew_ppm: float
+    offset_std_us: float | None = None
+    skew_std_ppm: float | None = None
+    skew_estimated: bool = False
+    objects: dict = field(default_factory=dict)
+    held: dict = field(default_factory=dict)
+    hand_eye_dT_cam: np.ndarray | None = None
+    hand_eye_dt_mm: float = 0.0
+    hand_eye_dR_deg: float = 0.0
+    hand_eye_std_mm: float | None = None
+    hand_eye_std_deg: float | None = None
+    objective_before: float = float("nan")
+    objective_after: float = float("nan")
+    n_windows: int = 0
+    iterations: int = 0
+    runtime_s: float = 0.0
+    accepted: bool = False
+    reason: str = ""
+    trace: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        """The result as the CLI prints it: clock at the top, then ``objects`` and ``hand_eye``."""
+        p = self.params
+        d = {"offset_us": int(self.offset_us), "skew_ppm": float(self.skew_ppm),
+             "offset_std_us": _num(self.offset_std_us), "skew_std_ppm": _num(self.skew_std_ppm),
+             "skew_estimated": bool(self.skew_estimated), "clock_fitted": bool(p.clock),
+             "objects": {n: o.to_json() for n, o in self.objects.items()},
+             "held": dict(self.held),
+             "hand_eye": None if not p.hand_eye else {
+                 "dT_cam": None if self.hand_eye_dT_cam is None else np.asarray(self.hand_eye_dT_cam).tolist(),
+                 "dt_mm": float(self.hand_eye_dt_mm), "dR_deg": float(self.hand_eye_dR_deg),
+                 "dt_std_mm": _num(self.hand_eye_std_mm), "dR_std_deg": _num(self.hand_eye_std_deg)},
+             "objective_before": _num(self.objective_before), "objective_after": _num(self.objective_after),
+             "n_windows": int(self.n_windows), "iterations": int(self.iterations),
+             "runtime_s": float(self.runtime_s), "accepted": bool(self.accepted), "reason": self.reason}
+        return d

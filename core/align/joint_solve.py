@@ -1,0 +1,213 @@
+"""The inner problem of the joint edge fit: the parameter step that maximises the edge objective with the
+event-to-edge association held fixed, and the standard errors at the optimum.
+
+The objective is ``F = sum_e K(s_e + J_e . delta)`` (:func:`evpose.core.align.edges.kernel`) over the associated
+events, with the distances linearised in the parameters (:func:`evpose.core.align.joint_model.jacobian`). It is
+maximised by iteratively reweighted Newton steps: gradient ``J^T K'(s)`` and curvature ``J^T W J`` with the
+ridge's Welsch weights ``W = g(s) / sigma^2`` (positive, so every step is an ascent direction), Levenberg-Marquardt
+damping, a trust region on the predicted edge motion, and each step kept only when it raises ``F``.
+
+Standard errors are the cluster-robust sandwich ``A^-1 B A^-1`` over the windows (``A = J^T diag(-K''(s)) J``, the
+objective's own curvature, infinite standard errors along directions it does not curve down; ``B`` the spread of
+the windows' score sums ``sum_{e in w} K'(s_e) J_e``): events of one window share its pose errors, so
+they are not independent, and the spread between windows is what the data say about the estimate's noise. It is
+the linearised jackknife over windows; it grows when windows disagree (a model error that differs between
+viewpoints), not when all windows are shifted alike.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature"]
+
+_E05 = math.exp(0.5)
+
+
+class Layout:
+    """Column layout of the full parameter vector: clock (2), hand-eye (6), objects (6 each), and which of them
+    are free. ``cols(i)`` are the 14 columns of an event of object ``i``."""
+
+    def __init__(self, n_objects: int, clock: bool, skew: bool, hand_eye: bool, objects: list[bool]):
+        self.n_objects = n_objects
+        self.n = 8 + 6 * n_objects
+        free = np.zeros(self.n, bool)
+        free[0] = clock
+        free[1] = clock and skew
+        free[2:8] = hand_eye
+        for i, f in enumerate(objects):
+            free[8 + 6 * i: 14 + 6 * i] = f
+        self.free = free
+
+    def cols(self, i: int) -> np.ndarray:
+        return np.r_[0:8, 8 + 6 * i: 14 + 6 * i]
+
+    def with_fixed(self, index: int) -> "Layout":
+        out = Layout.__new__(Layout)
+        out.n_objects, out.n, out.free = self.n_objects, self.n, self.free.copy()
+        out.free[index] = False
+        return out
+
+
+def kernel_derivs(s: np.ndarray, outer: np.ndarray, sigma: float, beta: float, ridge: float = 1.0):
+    """``K(s)``, ``K'(s)`` and the Welsch weight ``ridge * g(s) / sigma^2`` of the edge kernel."""
+    u = s / sigma
+    g = np.exp(-0.5 * u * u)
+    bo = beta * outer * _E05
+    k = ridge * g - bo * u * g
+    dk = (g / sigma) * (-ridge * u + bo * (u * u - 1.0))
+    w = ridge * g / (sigma * sigma)
+    return k, dk, w
+
+
+def kernel_curvature(s: np.ndarray, outer: np.ndarray, sigma: float, beta: float, ridge: float = 1.0) -> np.ndarray:
+    """``-K''(s)``: the objective's own curvature per event (negative in the kernel's tails)."""
+    u = s / sigma
+    g = np.exp(-0.5 * u * u)
+    return (ridge * (1.0 - u * u) + beta * outer * _E05 * (u ** 3 - 3.0 * u)) * g / (sigma * sigma)
+
+
+def _normal_eqs(J: np.ndarray, rows: list, weight: np.ndarray, grad_w: np.ndarray, lay: Layout):
+    """``A = sum w J J^T`` and ``g = sum grad_w J`` over all events (``rows[i]``: object i's rows), in
+    full-vector indices."""
+    A = np.zeros((lay.n, lay.n))
+    g = np.zeros(lay.n)
+    for i, r in enumerate(rows):
+        if r.stop <= r.start:
+            continue
+        Ji = J[r]
+        c = lay.cols(i)
+        A[np.ix_(c, c)] += Ji.T @ (Ji * weight[r, None])
+        g[c] += grad_w[r] @ Ji
+    return A, g
+
+
+def solve_step(s0: np.ndarray, J: np.ndarray, rows: list, outer: np.ndarray, sigma: float, beta: float,
+               lay: Layout, max_move_px: float, prior: np.ndarray | None = None, theta0: np.ndarray | None = None,
+               bounds: np.ndarray | None = None, iters: int = 8) -> tuple[np.ndarray, float, float, float]:
+    """The step ``delta`` (full vector, zeros at fixed parameters) maximising ``sum K(s0 + J delta)`` minus the
+    prior ``0.5 * sum prior_j (theta0_j + delta_j)^2`` (``prior`` per parameter, 0 for none), with the RMS of the
+    predicted edge motion ``J delta`` at most ``max_move_px`` and each ``|delta_j|`` at most ``bounds[j]``;
+    ``rows[i]`` are object i's rows (the data sorted by object). Returns ``(delta, F(0), F(delta), move)`` with
+    ``move`` the RMS of ``J delta`` (px)."""
+    free = np.flatnonzero(lay.free)
+    n = lay.n
+    prior = np.zeros(n) if prior is None else prior
+    theta0 = np.zeros(n) if theta0 is None else theta0
+
+    def lin(delta):
+        out = s0.copy()
+        for i, r in enumerate(rows):
+            if r.stop > r.start:
+                out[r] += J[r] @ delta[lay.cols(i)]
+        return out
+
+    def objective(delta, s):
+        k, _, _ = kernel_derivs(s, outer, sigma, beta)
+        return float(k.sum()) - 0.5 * float(np.sum(prior * (theta0 + delta) ** 2))
+
+    delta = np.zeros(n)
+    s = s0
+    f0 = f = objective(delta, s)
+    lam = 1e-3
+    for _ in range(iters):
+        _, dk, w = kernel_derivs(s, outer, sigma, beta)
+        A, g = _normal_eqs(J, rows, w, dk, lay)
+        A += np.diag(prior)
+        g -= prior * (theta0 + delta)
+        Af, gf = A[np.ix_(free, free)], g[free]
+        scale = np.sqrt(np.maximum(np.diag(Af), 1e-12))
+        improved = False
+        for _ in range(8):
+            M = Af / np.outer(scale, scale) + lam * np.eye(len(free))
+            try:
+                step_f = np.linalg.solve(M, gf / scale) / scale
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            step = np.zeros(n)
+            step[free] = step_f
+            cand = delta + step
+            if bounds is not None:                          # every parameter within its bound (projected step)
+                cand = np.clip(cand, -bounds, bounds)
+            s_c = lin(cand)
+            move = float(np.sqrt(np.mean((s_c - s0) ** 2)))
+            if move > max_move_px:                          # trust region on the predicted edge motion
+                cand = delta + step * (max_move_px / move) * 0.999
+                s_c = lin(cand)
+            f_c = objective(cand, s_c)
+            if f_c > f:
+                gain = f_c - f
+                delta, s, f = cand, s_c, f_c
+                lam = max(lam / 3.0, 1e-6)
+                improved = True
+                break
+            lam *= 4.0
+        if not improved or gain < 1e-7 * abs(f):
+            break
+    return delta, f0, f, float(np.sqrt(np.mean((s - s0) ** 2))) if len(s0) else 0.0
+
+
+def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: np.ndarray, sigma: float,
+             beta: float, lay: Layout, prior: np.ndarray | None = None) -> np.ndarray:
+    """Cluster-robust covariance of the free parameters at the optimum (full ``n x n`` matrix, NaN rows/columns
+    for fixed parameters): ``A^-1 B A^-1`` with ``A`` the objective's curvature and ``B`` the covariance of the
+    windows' score sums scaled to their number (``n_w / (n_w - 1)``). An object whose parameters touch a
+    direction the objective does not curve down along (a pose the events do not pin: mostly out of view, a
+    symmetry) gets infinite standard errors and is left out of the others' covariance; everything is infinite
+    with fewer than 3 windows."""
+    n = lay.n
+    _, dk, _ = kernel_derivs(s, outer, sigma, beta)
+    A, _ = _normal_eqs(J, rows, kernel_curvature(s, outer, sigma, beta), dk, lay)   # observed curvature
+    if prior is not None:
+        A += np.diag(prior)
+    wins = np.unique(win)
+    cov = np.full((n, n), np.nan)
+    free = lay.free.copy()
+    if len(wins) < 3:
+        cov[np.ix_(free, free)] = np.inf
+        return cov
+    G = np.zeros((len(wins), n))
+    psi = J * dk[:, None]                                  # per-event score contributions
+    for i, r in enumerate(rows):
+        if r.stop <= r.start:
+            continue
+        c = lay.cols(i)
+        wr = np.searchsorted(wins, win[r])
+        for j in range(14):
+            G[:, c[j]] += np.bincount(wr, weights=psi[r, j], minlength=len(wins))
+    for _ in range(lay.n_objects + 2):
+        f = np.flatnonzero(free)
+        if len(f) == 0:
+            break
+        C, flat = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(wins))
+        if not flat.any():
+            cov[np.ix_(f, f)] = C
+            break
+        touched = f[flat]
+        blocks = {(j - 8) // 6 for j in touched if j >= 8}
+        if not blocks:                                    # the clock or hand-eye itself is not pinned
+            cov[np.ix_(f, f)] = C
+            cov[touched, :] = np.inf
+            cov[:, touched] = np.inf
+            break
+        for b in blocks:                                  # leave those objects out, then the others again
+            cols = np.arange(8 + 6 * b, 14 + 6 * b)
+            cov[cols, :] = np.inf
+            cov[:, cols] = np.inf
+            free[cols] = False
+    return cov
+
+
+def _sandwich_free(A: np.ndarray, G: np.ndarray, n_win: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(A^-1 B A^-1, flat)`` for the free parameters; ``flat`` marks parameters with a non-negligible share in
+    a direction where ``A`` is not positive (inverted as zero there)."""
+    G = G - G.mean(axis=0)
+    B = G.T @ G * (n_win / (n_win - 1.0))
+    scale = np.sqrt(np.maximum(np.abs(np.diag(A)), 1e-300))
+    evals, evecs = np.linalg.eigh(A / np.outer(scale, scale))
+    ok = evals > 1e-6 * max(float(evals.max()), 1e-300)
+    Ainv = (evecs[:, ok] / evals[ok]) @ evecs[:, ok].T / np.outer(scale, scale)
+    flat = (evecs[:, ~ok] ** 2).sum(axis=1) > 0.05
+    return Ainv @ B @ Ainv, flat
