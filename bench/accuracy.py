@@ -767,7 +767,7 @@ def _run_joint(args) -> dict:
 
     offs = published_offsets()
     pick = [offs[0], offs[len(offs) // 2], offs[-1], offs[len(offs) // 4], offs[3 * len(offs) // 4]]
-    scenes = ensure_scenes(joint_scene_jobs(args.quick, pick, MODELS, RENDER))
+    scenes = ensure_scenes(joint_scene_jobs(args.quick, pick, MODELS))
     ycb = None
     try:
         from synth_scenes import ensure_ycb_scene

@@ -9,7 +9,7 @@ import numpy as np
 
 from evpose.core.align.refine_result import RefineParams
 
-__all__ = ["JointParams", "JointResult", "ObjectFit"]
+__all__ = ["JOINT_SIGMAS_PX", "JointParams", "JointResult", "ObjectFit"]
 
 #: Coarse-to-fine kernel widths of the joint fit (px at half DAVIS346 resolution, scaled by fx / 146).
 JOINT_SIGMAS_PX = (1.5, 0.8, 0.45, 0.25, 0.14, 0.08)
@@ -33,7 +33,7 @@ class JointParams:
     n_windows: int = 24
     window_us: int = 10_000
     max_events: int = 12_000
-    sigmas_px: tuple | None = JOINT_SIGMAS_PX
+    sigmas_px: tuple | None = None         # px of the scene camera; None: JOINT_SIGMAS_PX scaled by fx / 146
     outer_per_level: int = 4
     step_sigmas: float = 1.0
     band_sigmas: float = 3.0
