@@ -15,7 +15,7 @@ from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 from evpose.core.errors import InputError
 
-__all__ = ["add_export_parser", "cmd_export", "summary_text"]
+__all__ = ["add_export_parser", "cmd_export", "summary_text", "format_options_from_args"]
 #: Window length when neither --window-ms nor --window-events is given (µs).
 DEFAULT_WINDOW_US = 10_000
 
@@ -48,6 +48,9 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--margin-mm", type=float, default=0.0, metavar="X",
                    help="enlarge the 3D box by X mm on every side (keypoints)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--split", metavar="NAME", default=None,
+                   help="bop: the split folder the scene goes into: test (default), train or val (optionally "
+                        "with a _TYPE suffix)")
     p.add_argument("--force", action="store_true",
                    help="replace an earlier evpose export of a different configuration in --out")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
@@ -97,6 +100,15 @@ def window_us_from_args(args) -> int:
     return window_us
 
 
+def format_options_from_args(args) -> dict | None:
+    """``--split`` as the BOP writer's option (refused for the other formats)."""
+    if getattr(args, "split", None) is None:
+        return None
+    if args.format != "bop":
+        raise CliError(f"--split: only for --format bop, not {args.format}")
+    return {"split": args.split}
+
+
 def objects_from_args(args) -> list[str] | None:
     """``--objects a,b`` as a list (None: all objects)."""
     if args.objects is None:
@@ -114,11 +126,12 @@ def cmd_export(args) -> int:
 
     window_us = window_us_from_args(args)
     objects = objects_from_args(args)
+    format_options = format_options_from_args(args)
     try:
         with Progress(f"export {args.format}", not args.quiet) as progress:
             s = export_scene(args.scene, args.format, args.out, window_us=window_us, window_events=args.window_events,
                              label_at=args.label_at, only_verified=args.only_verified, objects=objects,
-                             include_stale=args.include_stale,
+                             include_stale=args.include_stale, format_options=format_options,
                              margin_m=args.margin_mm * 1e-3, jobs=args.jobs, force=args.force, progress=progress)
     except InputError as exc:
         if objects is not None and str(exc).startswith("objects:"):

@@ -5,9 +5,10 @@ Layout::
     OUT/<scene name>/     the scene's export, file for file what ``evpose export SCENE --out OUT/<scene name>``
                           writes (resumable and journaled as that command's folder)
     OUT/bop/              (``--format bop``) one BOP dataset: ``camera.json``, ``models/`` once (``obj_id`` from
-                          the class ids), the scenes as ``000000``, ``000001``, ... in dataset order, and
-                          ``scene_names.json`` (scene id -> scene name); its files are hard links to the scenes'
-                          own files (no second copy on disk)
+                          the class ids), the scenes as ``SPLIT/000000``, ``SPLIT/000001``, ... in dataset order,
+                          the test targets, and ``scene_names.json`` (scene id -> scene name); its files are hard
+                          links to the scenes' own files (no second copy on disk); see
+                          :mod:`evpose.core.dataset.bop_dataset`
 
 Each scene is driven from a thread of this process (windows, poses, journal, aggregate files), and its
 chunks of windows run as Dask tasks (:class:`~evpose.core.dataset.dask_windows.DaskWindows`), so one long

@@ -1,17 +1,20 @@
-"""BOP layout (https://github.com/thodan/bop_toolkit, docs/bop_datasets_format.md) of undistorted event frames.
+"""BOP format (https://github.com/thodan/bop_toolkit, docs/bop_datasets_format.md) of undistorted event frames.
 
-Output::
+Output (``SPLIT``: ``test`` unless chosen, see :func:`~evpose.core.export.bop_conventions.check_split`)::
 
-    OUT/camera.json                      cx, cy, fx, fy, width, height, depth_scale of the undistorted camera
-    OUT/models/obj_OOOOOO.ply            meshes in millimetres (binary PLY, float32 vertices)
+    OUT/camera.json                      cx, cy, fx, fy (BOP pixel convention), width, height, depth_scale
+    OUT/models/obj_OOOOOO.ply            meshes in mm with vertex normals (:mod:`~evpose.core.export.bop_models`)
     OUT/models/models_info.json          diameter, min_x/y/z, size_x/y/z (mm) per obj_id
-    OUT/SSSSSS/rgb/IIIIII.png            event frame of window IIIIII (undistorted, polarity colours)
-    OUT/SSSSSS/mask/IIIIII_GGGGGG.png    amodal mask of the GGGGGG-th ground-truth object (8-bit 0/255)
-    OUT/SSSSSS/mask_visib/IIIIII_GGGGGG.png   visible mask (8-bit 0/255)
-    OUT/SSSSSS/scene_camera.json         cam_K, depth_scale, cam_R_w2c, cam_t_w2c (world = robot base, mm)
-    OUT/SSSSSS/scene_gt.json             obj_id, cam_R_m2c (row-major), cam_t_m2c (mm)
-    OUT/SSSSSS/scene_gt_info.json        bbox_obj, bbox_visib, px_count_all/valid/visib, visib_fract
-    OUT/SSSSSS/scene_times.json          t_start_us, t_end_us, t_label_us (event clock), n_events, offset_us, skew_ppm
+    OUT/test_targets_bop19.json          localisation targets: instances with visib_fract >= 0.1
+    OUT/test_targets_bop24.json          detection targets: every image
+    OUT/SPLIT/SSSSSS/rgb/IIIIII.png      event frame of window IIIIII (undistorted, R = ON, B = OFF, G = 0)
+    OUT/SPLIT/SSSSSS/mask/IIIIII_GGGGGG.png        amodal mask of the GGGGGG-th ground-truth object (8-bit 0/255)
+    OUT/SPLIT/SSSSSS/mask_visib/IIIIII_GGGGGG.png  visible mask (8-bit 0/255)
+    OUT/SPLIT/SSSSSS/scene_camera.json   cam_K (BOP convention), depth_scale, cam_R_w2c, cam_t_w2c (world = base, mm)
+    OUT/SPLIT/SSSSSS/scene_gt.json       obj_id, cam_R_m2c (row-major), cam_t_m2c (mm)
+    OUT/SPLIT/SSSSSS/scene_gt_info.json  as BOP's calc_gt_info (:mod:`~evpose.core.export.bop_gt_info`)
+    OUT/SPLIT/SSSSSS/scene_times.json    t_start_us, t_end_us, t_label_us (event clock), n_events, offset_us, skew_ppm
+    OUT/SPLIT/SSSSSS/evpose_scene.json   the OpenCV K, raw camera, object names, windows, clock (evpose's sidecar)
 
 ``SSSSSS`` is the scene id (default 0), ``IIIIII`` the zero-based window index of the tiling (so ids
 match the other formats and the manifest; unlabeled and unverified windows have no image, leaving
@@ -20,20 +23,20 @@ appears in every image, in the scene's object order, also when out of view (then
 and ``visib_fract`` 0).
 
 Camera: the pinhole camera ``K_new`` (default: the raw camera's ``K``) without distortion, same size as
-the sensor. Events move to undistorted integer pixels through :func:`evpose.core.label.event_frames.undistort.undistorter_for`
-(each event to exactly one pixel, so counts are preserved; events whose pixel maps outside the image
-are dropped). Masks are rasterised directly in the undistorted camera (exact, no resampling).
+the sensor. ``cam_K`` and ``camera.json`` hold it in BOP's pixel convention, ``cx + 0.5`` and ``cy + 0.5``
+(:func:`~evpose.core.export.bop_conventions.bop_K`: the toolkit's renderers put the origin at the corner
+of the top-left pixel), so that the toolkit renders the masks evpose wrote; ``evpose_scene.json`` keeps
+``K_new`` in evpose's (OpenCV's) convention. Events move to undistorted integer pixels through
+:func:`evpose.core.label.event_frames.undistort.undistorter_for` (each event to exactly one pixel, so counts
+are preserved; events whose pixel maps outside the image are dropped). Masks are rasterised directly in
+the undistorted camera (exact, no resampling).
 
 ``rgb`` encoding: 8-bit RGB, ON events red, OFF events blue on black,
 :func:`evpose.core.label.event_frames.display.polarity_rgb` (``count / s`` clipped to 1, ``s`` = 99th percentile of the window's
-non-zero counts); G is 0.
+non-zero counts); G is 0. No depth images.
 
 ``obj_id``: the scene's ``class_id`` when the exported objects' class ids are distinct and >= 1,
 otherwise the 1-based position among the exported objects (recorded in export_manifest.json).
-
-``px_count_valid``: amodal-mask pixels that are valid in the undistorted image (their ray falls on the
-raw sensor within the monotonic distortion radius); there is no depth image.
-``bbox_obj``: tight box of the amodal mask within the image (not extended beyond the image border).
 """
 from __future__ import annotations
 
@@ -44,13 +47,28 @@ import numpy as np
 
 from evpose.core.data.atomic import AtomicBatch, write_atomic
 from evpose.core.data.geometry import inv_T
+from evpose.core.export.bop_conventions import (
+    DEFAULT_SPLIT,
+    TARGETS_BOP19,
+    TARGETS_BOP24,
+    bop_K,
+    check_split,
+    targets_bop19,
+    targets_bop24,
+)
+from evpose.core.export.bop_gt_info import EnlargedCanvas, gt_info
+from evpose.core.export.bop_models import models_info_entry, ply_bytes, vertex_normals
+from evpose.core.export.bop_readme import SIDECAR_NAME, readme_text, scene_sidecar
 from evpose.core.export.encode import encode_png, json_text
-from evpose.core.export.fingerprint import evpose_version
 from evpose.core.export.options import ExportError
 from evpose.core.export.writer import FormatWriter
 from evpose.core.label.event_frames.counts import polarity_counts
 from evpose.core.label.event_frames.undistort import undistorter_for
 from evpose.core.label.labels import Request
+
+__all__ = ["BopWriter", "bop_obj_ids", "polarity_rgb_black"]
+
+_SCENE_FILES = ("scene_gt.json", "scene_gt_info.json", "scene_camera.json", "scene_times.json")
 
 
 def _K_of(scene, K_new):
@@ -95,12 +113,19 @@ def _dump_keyed(d: dict) -> str:
     return "{\n" + ",\n".join(f"  {json.dumps(str(k))}: {json.dumps(d[k])}" for k in keys) + "\n}\n"
 
 
+def dump_list(items: list) -> str:
+    """A JSON list, one item per line (the test targets)."""
+    if not items:
+        return "[]\n"
+    return "[\n" + ",\n".join(f"  {json.dumps(e)}" for e in items) + "\n]\n"
+
+
 class BopWriter(FormatWriter):
     """BOP writer (see the module docstring for every encoding)."""
 
     fmt = "bop"
 
-    def __init__(self, K_new=None, scene_id: int = 0, png_compression: int = 1):
+    def __init__(self, K_new=None, scene_id: int = 0, png_compression: int = 1, split: str = DEFAULT_SPLIT):
         if K_new is not None:
             K_new = np.asarray(K_new, np.float64)
             if K_new.shape != (3, 3):
@@ -111,9 +136,11 @@ class BopWriter(FormatWriter):
         self.K_new = K_new
         self.scene_id = int(scene_id)
         self.png_compression = int(png_compression)
+        self.split = check_split(split)
 
     def options(self) -> dict:
-        return {"K_new": self.K_new, "scene_id": self.scene_id, "png_compression": self.png_compression}
+        return {"K_new": self.K_new, "scene_id": self.scene_id, "png_compression": self.png_compression,
+                "split": self.split}
 
     def output_camera(self, scene):
         return scene.camera.undistorted(_K_of(scene, self.K_new))
@@ -121,19 +148,22 @@ class BopWriter(FormatWriter):
     def request(self, margin_m: float) -> Request:
         return Request(keypoints=False, masks_visible=True, masks_full=True, label_map=False, margin_m=margin_m)
 
+    def scene_rel(self) -> str:
+        """The scene folder relative to the export folder: ``SPLIT/SSSSSS``."""
+        return f"{self.split}/{self.scene_id:06d}"
+
     def scene_dir(self, out_dir):
-        return out_dir / f"{self.scene_id:06d}"
+        return out_dir / self.split / f"{self.scene_id:06d}"
 
     def last_file(self, ctx, index):
         return self.scene_dir(ctx.out_dir) / "rgb" / f"{index:06d}.png"
 
     # ------------------------------------------------------------------ parent
     def begin(self, ctx) -> None:
-        import trimesh
-
         scene = ctx.scene
         sd = self.scene_dir(ctx.out_dir)
-        dirs = [sd] + [sd / sub for sub in ("rgb", "mask", "mask_visib")] + [ctx.out_dir / "models"]
+        dirs = [ctx.out_dir / self.split, sd] + [sd / sub for sub in ("rgb", "mask", "mask_visib")]
+        dirs.append(ctx.out_dir / "models")
         ctx.owned.dirs([d for d in dirs if not d.is_dir()])       # logged before they exist (evpose.core.data.owned_files)
         for d in dirs:
             d.mkdir(exist_ok=True)
@@ -141,33 +171,39 @@ class BopWriter(FormatWriter):
         info = {}
         for n in ctx.names:
             m = scene.model(n)
-            lo, hi = m.bbox_min_max
-            data = trimesh.Trimesh(m.vertices_m * 1000.0, m.faces, process=False).export(file_type="ply")
+            V = m.vertices_m * 1000.0
+            data = ply_bytes(V, m.faces, vertex_normals(V, m.faces), comment=f"evpose object {n} (mm, mesh origin)")
             write_atomic(ctx.out_dir / "models" / f"obj_{ids[n]:06d}.ply", data, ctx.fsync, ctx.owned)
-            info[str(ids[n])] = {"diameter": m.diameter_m * 1000.0,
-                                 "min_x": float(lo[0] * 1000.0), "min_y": float(lo[1] * 1000.0),
-                                 "min_z": float(lo[2] * 1000.0), "size_x": float((hi[0] - lo[0]) * 1000.0),
-                                 "size_y": float((hi[1] - lo[1]) * 1000.0), "size_z": float((hi[2] - lo[2]) * 1000.0)}
+            info[str(ids[n])] = models_info_entry(m)
         write_atomic(ctx.out_dir / "models" / "models_info.json", _dump_keyed(info).encode(), ctx.fsync, ctx.owned)
         K = _K_of(scene, self.K_new)
+        Kb = bop_K(K)
         cam = scene.camera
         write_atomic(ctx.out_dir / "camera.json",
-                     json_text({"cx": K[0, 2], "cy": K[1, 2], "depth_scale": 1.0, "fx": K[0, 0], "fy": K[1, 1],
+                     json_text({"cx": Kb[0, 2], "cy": Kb[1, 2], "depth_scale": 1.0, "fx": Kb[0, 0],
+                                "fy": Kb[1, 1],
                                 "height": cam.height, "width": cam.width}).encode(), ctx.fsync, ctx.owned)
+        write_atomic(sd / SIDECAR_NAME, json_text(scene_sidecar(ctx, K, ids, self.split)).encode(), ctx.fsync,
+                     ctx.owned)
         write_atomic(ctx.out_dir / "README.txt", self.readme(ctx).encode(), ctx.fsync, ctx.owned)
         ctx.extra["object_extra"] = {n: {"obj_id": ids[n]} for n in ctx.names}
-        ctx.extra["manifest_extra"] = {"K_new": K.tolist(), "scene_id": self.scene_id}
+        ctx.extra["manifest_extra"] = {"K_new": K.tolist(), "cam_K_bop": Kb.tolist(), "scene_id": self.scene_id,
+                                       "split": self.split}
 
     def finish(self, ctx, records) -> list[str]:
         sd = self.scene_dir(ctx.out_dir)
         written = {i: r for i, r in records.items() if r.get("status") == "written"}
-        for name, key in (("scene_gt.json", "gt"), ("scene_gt_info.json", "info"), ("scene_camera.json", "cam"),
-                          ("scene_times.json", "times")):
+        for name, key in zip(_SCENE_FILES, ("gt", "info", "cam", "times")):
             write_atomic(sd / name, _dump_keyed({i: r[key] for i, r in written.items()}).encode(), ctx.fsync, ctx.owned)
+        t19 = targets_bop19(self.scene_id, {i: (r["gt"], r["info"]) for i, r in written.items()})
+        write_atomic(ctx.out_dir / TARGETS_BOP19, dump_list(t19).encode(), ctx.fsync, ctx.owned)
+        write_atomic(ctx.out_dir / TARGETS_BOP24, dump_list(targets_bop24(self.scene_id, written)).encode(),
+                     ctx.fsync, ctx.owned)
         ids = bop_obj_ids(ctx.scene, ctx.names)
-        s = f"{self.scene_id:06d}"
-        files = ["camera.json", "models/models_info.json"] + [f"models/obj_{ids[n]:06d}.ply" for n in ctx.names]
-        files += [f"{s}/{n}" for n in ("scene_gt.json", "scene_gt_info.json", "scene_camera.json", "scene_times.json")]
+        s = self.scene_rel()
+        files = ["camera.json", "models/models_info.json", TARGETS_BOP19, TARGETS_BOP24]
+        files += [f"models/obj_{ids[n]:06d}.ply" for n in ctx.names]
+        files += [f"{s}/{n}" for n in _SCENE_FILES + (SIDECAR_NAME,)]
         files.append("README.txt")
         per = []
         for i in sorted(written):
@@ -198,9 +234,10 @@ class BopWriter(FormatWriter):
                      & (uv[:, 1] >= -0.5) & (uv[:, 1] < raw.height - 0.5)).reshape(cam.height, cam.width)
         ids = bop_obj_ids(scene, wctx.names)
         clock = scene.clock
-        return {"und": undistorter_for(raw, K), "valid": valid, "K": K.ravel().tolist(),
+        return {"und": undistorter_for(raw, K), "valid": valid, "K": bop_K(K).ravel().tolist(),
                 "obj_ids": [ids[n] for n in wctx.names], "offset_us": int(clock.offset_us),
-                "skew_ppm": float(clock.skew_ppm), "empty": None}
+                "skew_ppm": float(clock.skew_ppm), "canvas": EnlargedCanvas(cam),
+                "models": [scene.raster_model(n) for n in wctx.names]}
 
     def process(self, wctx, task, ev, labels):
         st = wctx.state
@@ -226,14 +263,11 @@ class BopWriter(FormatWriter):
                 if empty is None:
                     empty = encode_png(np.zeros((H, W), np.uint8), compression=comp)
                 b_full = b_vis = empty
-                n_valid = 0
+                full = vis = None
             else:
                 b_full = encode_png(full.view(np.uint8) * np.uint8(255), compression=comp)
                 b_vis = b_full if vis is full else encode_png(vis.view(np.uint8) * np.uint8(255), compression=comp)
-                n_valid = int(np.count_nonzero(full & st["valid"]))
-            info.append({"bbox_obj": [int(v) for v in o.bbox_obj], "bbox_visib": [int(v) for v in o.bbox_visib],
-                         "px_count_all": int(o.px_count_all), "px_count_valid": n_valid,
-                         "px_count_visib": int(o.px_count_visib), "visib_fract": float(o.visib_fract)})
+            info.append(gt_info(full, vis, st["valid"], st["canvas"].outside(st["models"][g], T)))
             blobs.append((sd / "mask" / f"{w.index:06d}_{g:06d}.png", b_full))
             blobs.append((sd / "mask_visib" / f"{w.index:06d}_{g:06d}.png", b_vis))
         blobs.append((sd / "rgb" / f"{w.index:06d}.png", encode_png(rgb, compression=comp)))
@@ -254,29 +288,5 @@ class BopWriter(FormatWriter):
         return rec, None
 
     def readme(self, ctx) -> str:
-        scene = ctx.scene
-        clock = scene.clock
-        K = _K_of(scene, self.K_new)
-        ids = bop_obj_ids(scene, ctx.names)
-        objs = ", ".join(f"obj_{ids[n]:06d} = {n}" for n in ctx.names)
-        fp = ctx.fingerprint["windows"]
-        win = (f"{fp['window_us']} us" if fp["window_us"] is not None else f"{fp['window_events']} events")
-        return f"""BOP-layout export of event windows of scene "{scene.name}" written by evpose {evpose_version()}.
-See export_manifest.json for the exact configuration, clock, corrections and per-window status.
-
-- Images: one per labeled window [t0, t1) of {win} (half-open, tiling the recording; every event in one
-  window); image id = zero-based window index. rgb/IIIIII.png: the window's events moved to the
-  UNDISTORTED pinhole camera K_new = {K.tolist()} (no distortion, {scene.camera.width}x{scene.camera.height}),
-  ON events red, OFF events blue on black, intensity = count / (99th percentile of the window's
-  non-zero counts), clipped. Events whose undistorted pixel falls outside the image are dropped.
-- Masks: rasterised in that same undistorted camera (exact, no resampling); mask = amodal, mask_visib =
-  visible (occlusion by every scene object); 8-bit 0/255.
-- Poses: cam_R_m2c (row-major), cam_t_m2c in mm at the window's label time
-  ({"centre" if ctx.label_at == "center" else "end"} of the window, event clock); cam_R_w2c / cam_t_w2c: world = robot base.
-- Timing sidecar scene_times.json (same ids): t_start_us, t_end_us, t_label_us on the event clock,
-  n_events in the window (n_events_in_image after undistortion), and the clock used:
-  t_pose = t_event + offset_us + skew_ppm*1e-6*(t_event - t_ref_us), offset_us = {clock.offset_us},
-  skew_ppm = {clock.skew_ppm!r}, t_ref_us = {clock.t_ref_us} (the recording's first event).
-- Objects: {objs}; models in mm. No depth images (depth_scale 1.0 is nominal); px_count_valid counts amodal
-  pixels that the raw sensor covers.
-"""
+        return readme_text(ctx, _K_of(ctx.scene, self.K_new), bop_obj_ids(ctx.scene, ctx.names), self.split,
+                           self.scene_id)

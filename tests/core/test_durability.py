@@ -235,7 +235,7 @@ def test_every_module_that_renames_files_into_place_is_pinned_here():
 
 # ------------------------------------------------------------------------------------------- exports
 def _last_file(fmt: str, index: int) -> str:
-    return f"{index:04d}_data.mat" if fmt == "epose" else f"000000/rgb/{index:06d}.png"
+    return f"{index:04d}_data.mat" if fmt == "epose" else f"test/000000/rgb/{index:06d}.png"
 
 
 @pytest.mark.parametrize("fmt", ["epose", "bop"])

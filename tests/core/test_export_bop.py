@@ -1,6 +1,7 @@
 """BOP export: exact poses after ground-truth corrections, exact clock round trip through the
 sidecar, masks of the undistorted camera vs open3d, layout. JSON is read back with the plain json
-module (an independent reader)."""
+module (an independent reader). BOP's own definitions (pixel origin, calc_gt_info, models, targets)
+are checked independently in tests/core/test_export_bop_toolkit.py."""
 import json
 import shutil
 from pathlib import Path
@@ -65,7 +66,7 @@ def gt_export(tiny_scene_dir, tmp_path_factory):
 def test_poses_equal_ground_truth(gt_export):
     scene_dir, out, s, gt = gt_export
     assert s.written == s.windows_total == 80
-    sd = out / "000000"
+    sd = out / "test" / "000000"
     scene_gt = json.loads((sd / "scene_gt.json").read_text())
     times = json.loads((sd / "scene_times.json").read_text())
     cams = json.loads((sd / "scene_camera.json").read_text())
@@ -94,29 +95,34 @@ def test_poses_equal_ground_truth(gt_export):
 
 def test_layout_and_gt_info(gt_export):
     scene_dir, out, s, gt = gt_export
-    sd = out / "000000"
+    sd = out / "test" / "000000"
     scene = Scene.open(scene_dir)
     H, W = scene.camera.height, scene.camera.width
     cams = json.loads((sd / "scene_camera.json").read_text())
     ginfo = json.loads((sd / "scene_gt_info.json").read_text())
     cam_json = json.loads((out / "camera.json").read_text())
     assert cam_json["fx"] == scene.camera.K[0, 0] and cam_json["width"] == W
+    assert cam_json["cx"] == scene.camera.K[0, 2] + 0.5 and cam_json["cy"] == scene.camera.K[1, 2] + 0.5
     for im_id in list(ginfo)[::9]:
         i = int(im_id)
-        assert cams[im_id]["cam_K"] == scene.camera.K.ravel().tolist()      # K_new = K by default
+        K_bop = scene.camera.K.copy()
+        K_bop[:2, 2] += 0.5                                                 # BOP: pixel origin at the corner
+        assert cams[im_id]["cam_K"] == K_bop.ravel().tolist()               # K_new = K by default
         rgb = cv2.imread(str(sd / "rgb" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
         assert rgb.shape == (H, W, 3) and not rgb[..., 1].any()             # ON red, OFF blue, G = 0
         for g, e in enumerate(ginfo[im_id]):
             full = cv2.imread(str(sd / "mask" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
             vis = cv2.imread(str(sd / "mask_visib" / f"{i:06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
             assert set(np.unique(full)) <= {0, 255} and set(np.unique(vis)) <= {0, 255}
-            assert e["px_count_all"] == int((full > 0).sum()) and e["px_count_visib"] == int((vis > 0).sum())
+            # px_count_all also counts the silhouette outside the image (calc_gt_info)
+            assert e["px_count_all"] >= int((full > 0).sum()) and e["px_count_visib"] == int((vis > 0).sum())
             assert not ((vis > 0) & (full == 0)).any()
             assert e["px_count_valid"] <= e["px_count_all"]
             assert e["visib_fract"] == pytest.approx(e["px_count_visib"] / e["px_count_all"] if e["px_count_all"] else 0)
             if e["px_count_visib"]:
                 ys, xs = np.nonzero(vis)
-                assert e["bbox_visib"] == [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
+                assert e["bbox_visib"] == [int(xs.min()), int(ys.min()),
+                                           int(xs.max() - xs.min()), int(ys.max() - ys.min())]
     ply = (out / "models" / "obj_000001.ply").read_bytes()
     assert ply.startswith(b"ply")
     models_info = json.loads((out / "models" / "models_info.json").read_text())
@@ -126,11 +132,12 @@ def test_layout_and_gt_info(gt_export):
 
 
 def mask_box(mask: np.ndarray) -> list[int]:
-    """BOP ``[x, y, w, h]`` of a 0/255 mask image (independent of the exporter), [-1] * 4 when empty."""
+    """BOP ``[x, y, w, h]`` of a 0/255 mask image (``misc.calc_2d_bbox``: w = x_max - x_min; independent of
+    the exporter), [-1] * 4 when empty."""
     ys, xs = np.nonzero(mask)
     if len(xs) == 0:
         return [-1, -1, -1, -1]
-    return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
+    return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min()), int(ys.max() - ys.min())]
 
 
 def test_models_written_in_millimetres(gt_export):
@@ -176,7 +183,7 @@ def _occluded_instances(scene, out):
     """``(image id, gt index, scene_gt entry, scene_gt_info entry, mask, mask_visib)`` of the occluded cube."""
     from occlusion_scene import OCCLUDED
 
-    sd = out / "000000"
+    sd = out / "test" / "000000"
     scene_gt = json.loads((sd / "scene_gt.json").read_text())
     ginfo = json.loads((sd / "scene_gt_info.json").read_text())
     g = scene.object_names.index(OCCLUDED)
@@ -201,7 +208,7 @@ def test_amodal_mask_of_an_occluded_object(occluded_export):
         full, vis = full > 0, vis > 0
         assert 0 < vis.sum() < 0.8 * full.sum(), (im_id, vis.sum(), full.sum())   # really occluded
         assert not (vis & ~full).any()
-        assert info["px_count_all"] == int(full.sum()) and info["px_count_visib"] == int(vis.sum())
+        assert info["px_count_all"] >= int(full.sum()) and info["px_count_visib"] == int(vis.sum())
         T = np.eye(4)
         T[:3, :3] = np.array(e["cam_R_m2c"]).reshape(3, 3)
         T[:3, 3] = np.array(e["cam_t_m2c"]) / 1000.0
@@ -225,17 +232,27 @@ def test_amodal_mask_of_an_occluded_object(occluded_export):
 
 
 def test_bbox_obj_is_the_amodal_box(occluded_export):
-    """bbox_obj is the tight box of the amodal mask, bbox_visib that of the visible mask (both read back
-    from the PNGs); for the half-hidden cube the two boxes differ."""
+    """bbox_obj is the box of the whole (amodal) silhouette, bbox_visib that of the visible mask (both
+    checked against the PNGs): bbox_visib equals the visible mask's box, bbox_obj contains the amodal
+    mask's box and equals it where the object stays in the image; for the half-hidden cube the two differ."""
     scene, out = occluded_export
-    sd = out / "000000"
+    sd = out / "test" / "000000"
     ginfo = json.loads((sd / "scene_gt_info.json").read_text())
+    H, W = scene.camera.height, scene.camera.width
     for im_id, entries in ginfo.items():
         for g, e in enumerate(entries):
             full = cv2.imread(str(sd / "mask" / f"{int(im_id):06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
             vis = cv2.imread(str(sd / "mask_visib" / f"{int(im_id):06d}_{g:06d}.png"), cv2.IMREAD_UNCHANGED)
-            assert e["bbox_obj"] == mask_box(full), (im_id, g)
             assert e["bbox_visib"] == mask_box(vis), (im_id, g)
+            if not vis.any():
+                continue
+            x, y, w, h = e["bbox_obj"]
+            fx, fy, fw, fh = mask_box(full)
+            assert x <= fx and y <= fy and x + w >= fx + fw and y + h >= fy + fh, (im_id, g)
+            if e["px_count_all"] == int((full > 0).sum()):                   # all of it in the image
+                assert e["bbox_obj"] == mask_box(full), (im_id, g)
+            else:
+                assert x < 0 or y < 0 or x + w > W - 1 or y + h > H - 1, (im_id, g)
     differ = [info["bbox_obj"] != info["bbox_visib"] for *_, info, full, vis in _occluded_instances(scene, out)]
     assert differ == [True] * 3
 
@@ -244,7 +261,7 @@ def test_rgb_preserves_event_counts(gt_export):
     """Events are moved to undistorted pixels one by one (never resampled as an image)."""
     scene_dir, out, s, _ = gt_export
     scene = Scene.open(scene_dir)
-    times = json.loads((out / "000000" / "scene_times.json").read_text())
+    times = json.loads((out / "test" / "000000" / "scene_times.json").read_text())
     und = undistorter_for(scene.camera)
     for im_id in list(times)[10:70:15]:
         t = times[im_id]
@@ -252,7 +269,7 @@ def test_rgb_preserves_event_counts(gt_export):
         assert len(ev) == t["n_events"]
         evu = und.apply(ev)
         assert len(evu) == t["n_events_in_image"]
-        rgb = cv2.imread(str(out / "000000" / "rgb" / f"{int(im_id):06d}.png"))[..., ::-1]
+        rgb = cv2.imread(str(out / "test" / "000000" / "rgb" / f"{int(im_id):06d}.png"))[..., ::-1]
         lit = np.zeros(rgb.shape[:2], bool)
         lit[evu.y, evu.x] = True
         assert np.array_equal(rgb.max(axis=2) > 0, lit)
@@ -265,7 +282,7 @@ def test_masks_match_open3d_in_undistorted_camera(gt_export):
     o3d = pytest.importorskip("open3d")
     scene_dir, out, s, gt = gt_export
     scene = Scene.open(scene_dir)
-    sd = out / "000000"
+    sd = out / "test" / "000000"
     scene_gt = json.loads((sd / "scene_gt.json").read_text())
     K = scene.camera.K
     H, W = scene.camera.height, scene.camera.width
@@ -334,8 +351,8 @@ def test_extreme_clock_round_trips_exactly(tiny_scene_dir, tmp_path, shift_us, s
     out = tmp_path / "out"
     s = export_scene(scene_dir, "bop", out, only_verified=True)
     assert s.written == 3 and s.unlabeled == 0
-    times = json.loads((out / "000000" / "scene_times.json").read_text())
-    scene_gt = json.loads((out / "000000" / "scene_gt.json").read_text())
+    times = json.loads((out / "test" / "000000" / "scene_times.json").read_text())
+    scene_gt = json.loads((out / "test" / "000000" / "scene_gt.json").read_text())
     man = json.loads((out / "export_manifest.json").read_text())
     assert man["clock"]["offset_us"] == offset and man["clock"]["skew_ppm"] == skew_ppm
     assert type(man["clock"]["offset_us"]) is int
@@ -364,11 +381,15 @@ def test_K_new_option_and_scene_id(tiny_scene_dir, tmp_path):
     s = export_scene(scene, "bop", tmp_path / "out", only_verified=True, objects="box,flatbox",
                      format_options={"K_new": K_new.tolist(), "scene_id": 7})
     assert s.written == 1
-    sd = tmp_path / "out" / "000007"
+    sd = tmp_path / "out" / "test" / "000007"
     cams = json.loads((sd / "scene_camera.json").read_text())
     gt = json.loads((sd / "scene_gt.json").read_text())
     (im_id,) = cams
-    assert cams[im_id]["cam_K"] == K_new.ravel().tolist()
+    K_bop = K_new.copy()
+    K_bop[:2, 2] += 0.5
+    assert cams[im_id]["cam_K"] == K_bop.ravel().tolist()
+    side = json.loads((sd / "evpose_scene.json").read_text())
+    assert side["K_opencv"] == K_new.tolist() and side["K_bop"] == K_bop.tolist()
     assert [e["obj_id"] for e in gt[im_id]] == [1, 3]
     assert len(list((sd / "mask").glob("*.png"))) == 2
 
@@ -390,7 +411,7 @@ def test_resume_after_cancel_identical(tiny_scene_dir, tmp_path):
     n = {"k": 0}
     with pytest.raises(Cancelled):
         export_scene(scene_dir, "bop", out, only_verified=True, cancel=lambda: (n.__setitem__("k", n["k"] + 1), n["k"] > 4)[1])
-    assert not (out / "000000" / "scene_gt.json").exists()
+    assert not (out / "test" / "000000" / "scene_gt.json").exists()
     assert not [p for p in out.rglob(".*.tmp")]
     s = export_scene(scene_dir, "bop", out, only_verified=True)
     assert s.skipped_complete == 4 and s.written == 6

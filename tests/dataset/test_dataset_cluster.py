@@ -103,11 +103,18 @@ def test_bop_export_is_one_dataset(dask_client, tiny_dataset, tmp_path):
     bop = out / "bop"
     names = json.loads((bop / "scene_names.json").read_text())
     assert names["scenes"] == {"000000": "scene_a", "000001": "scene_b", "000002": "scene_c"}
+    assert names["split"] == "test"                     # the scenes under BOP's split folder, same conventions
+    t19, t24 = [], []
     for sid, name in names["scenes"].items():
-        for p in (out / name / "000000").rglob("*"):
+        for p in (out / name / "test" / "000000").rglob("*"):
             if p.is_file():
-                q = bop / sid / p.relative_to(out / name / "000000")
+                q = bop / "test" / sid / p.relative_to(out / name / "test" / "000000")
                 assert q.read_bytes() == p.read_bytes()
+        t19 += [{**e, "scene_id": int(sid)} for e in json.loads((out / name / "test_targets_bop19.json").read_text())]
+        t24 += [{**e, "scene_id": int(sid)} for e in json.loads((out / name / "test_targets_bop24.json").read_text())]
+    assert json.loads((bop / "test_targets_bop19.json").read_text()) == t19 and t19
+    assert json.loads((bop / "test_targets_bop24.json").read_text()) == t24
+    assert {e["scene_id"] for e in t24} == {0, 1, 2}
     models = sorted(p.name for p in (bop / "models").iterdir())
     assert models == sorted(p.name for p in (out / "scene_a" / "models").iterdir())     # each obj_id once
     info = json.loads((bop / "models" / "models_info.json").read_text())
@@ -117,6 +124,24 @@ def test_bop_export_is_one_dataset(dask_client, tiny_dataset, tmp_path):
     (bop / "mine.txt").write_text("user file")
     res = export_dataset(dask_client, Dataset.open(tiny_dataset), "bop", out)
     assert "mine.txt" in res.failed["bop"] and (bop / "mine.txt").read_text() == "user file"
+
+
+def test_bop_dataset_in_the_chosen_split(dask_client, tiny_dataset, tmp_path):
+    """--split train: every scene under OUT/bop/train, with BOP's cam_K (pixel origin at the corner)."""
+    from evpose.core.dataset.export import export_dataset
+
+    out = tmp_path / "out"
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "bop", out, objects="box", window_us=100_000,
+                         format_options={"split": "train"})
+    assert res.failed == {}
+    bop = out / "bop"
+    assert sorted(p.name for p in (bop / "train").iterdir()) == ["000000", "000001", "000002"]
+    assert not (bop / "test").exists()
+    for sid in ("000000", "000001", "000002"):
+        side = json.loads((bop / "train" / sid / "evpose_scene.json").read_text())
+        cams = json.loads((bop / "train" / sid / "scene_camera.json").read_text())
+        K = side["K_opencv"]
+        assert all(c["cam_K"][2] == K[0][2] + 0.5 and c["cam_K"][5] == K[1][2] + 0.5 for c in cams.values())
 
 
 def test_a_killed_worker_gives_the_same_export(dask_client, tiny_dataset, reference_epose, tmp_path):
@@ -177,7 +202,7 @@ def test_a_broken_scene_is_reported_and_the_others_complete(dask_client, dataset
     assert list(res.failed) == ["scene_b"]
     names = json.loads((tmp_path / "bop_out" / "bop" / "scene_names.json").read_text())
     assert names["scenes"] == {"000000": "scene_a", "000002": "scene_c"} and names["missing"] == ["scene_b"]
-    assert sorted(p.name for p in (tmp_path / "bop_out" / "bop").iterdir() if p.name.startswith("0")) == ["000000", "000002"]
+    assert sorted(p.name for p in (tmp_path / "bop_out" / "bop" / "test").iterdir()) == ["000000", "000002"]
 
 
 def _evpose(*args, timeout=600):

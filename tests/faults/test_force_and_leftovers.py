@@ -201,7 +201,7 @@ def test_export_force_across_formats_removes_exactly_the_old_export(tiny_scene_d
 
     out = tmp_path / "ex"
     export_scene(tiny_scene_dir, "bop", out, objects="box", window_us=40_000)
-    assert (out / "000000" / "rgb").is_dir()
+    assert (out / "test" / "000000" / "rgb").is_dir()
     export_scene(tiny_scene_dir, "h5", out, objects="box", window_us=40_000, force=True)
     names = {p.name for p in out.iterdir()}
     assert names == {".evpose", "README.txt", "export_manifest.json", "tiny.h5"}, names
