@@ -22,7 +22,8 @@ def cmd_synth(args) -> int:
         objects=tuple(s.strip() for s in args.objects.split(",") if s.strip()),
         mesh_dir=args.mesh_dir, trajectory=args.trajectory, speed_mps=args.speed, duration_s=args.duration,
         offset_us=args.offset_us, skew_ppm=args.skew_ppm, pose_error_mm=args.pose_error_mm,
-        pose_error_deg=args.pose_error_deg, seed=args.seed, sensor=SensorParams(contrast=args.contrast))
+        pose_error_deg=args.pose_error_deg, hand_eye_error_mm=args.hand_eye_error_mm,
+        hand_eye_error_deg=args.hand_eye_error_deg, seed=args.seed, sensor=SensorParams(contrast=args.contrast))
     try:
         cfg.validate()
     except ValueError as exc:
@@ -74,6 +75,9 @@ def add_synth_parser(subparsers) -> None:
     s.add_argument("--skew-ppm", type=float, default=0.0, help="true clock skew, ppm")
     s.add_argument("--pose-error-mm", type=float, default=0.0, help="error injected into each T_base_obj, mm")
     s.add_argument("--pose-error-deg", type=float, default=0.0, help="rotation error injected, degrees")
+    s.add_argument("--hand-eye-error-mm", type=float, default=0.0,
+                   help="camera mounting error written into the trajectory (camera frame), mm")
+    s.add_argument("--hand-eye-error-deg", type=float, default=0.0, help="its rotation, degrees")
     s.add_argument("--contrast", type=float, default=0.2, help="mean contrast threshold (log intensity)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--force", action="store_true", help="replace a scene folder evpose made (removes only the "
