@@ -37,6 +37,7 @@ from evpose.widgets.timeline_playback import Playback
 from evpose.widgets.timeline_plot import RatePlot
 from evpose.widgets.timeline_scores import ScoreRow
 from evpose.widgets.timeline_scrub import Scrubber
+from evpose.widgets.timeline_style import MIN_PLOT_H, MIN_SCORE_H
 
 BIN_US = 1000                    # timeline bin (event rate and speed), µs
 MIN_X_RANGE_S = 0.005            # deepest zoom: 5 ms across the plot
@@ -110,6 +111,8 @@ class Timeline(QtWidgets.QWidget):
         lay.setContentsMargins(2, 2, 2, 2)
         lay.setSpacing(0)
         lay.addLayout(c.layout)
+        self.glw.setMinimumHeight(MIN_PLOT_H)          # never squeezed to a sliver by the docks or the window
+        self.score_glw.setMinimumHeight(MIN_SCORE_H)
         lay.addWidget(self.glw, 5)
         lay.addWidget(self.score_glw, 3)
         self.score_glw.setVisible(False)
@@ -315,10 +318,25 @@ class Timeline(QtWidgets.QWidget):
     def lower_is_better(self) -> bool:
         return self.score_row.lower_is_better
 
-    def set_scores(self, t_s, scores: dict, *, lower_is_better: bool = False, label: str = "score") -> None:
+    def set_scores(self, t_s, scores: dict, *, lower_is_better: bool = False, label: str = "score",
+                   low_evidence: dict | None = None) -> None:
         """Per-object alignment scores over time on the score row (see :meth:`ScoreRow.set_scores`):
-        ``t_s`` (N,) window label times in plot x (s), ``scores`` name -> (N,) float (NaN: undefined)."""
-        self.score_row.set_scores(t_s, scores, lower_is_better=lower_is_better, label=label)
+        ``t_s`` (N,) window label times in plot x (s), ``scores`` name -> (N,) float (NaN: undefined),
+        ``low_evidence`` name -> (N,) bool (drawn apart, never the worst). The row is shown fresh."""
+        self.score_row.set_scores(t_s, scores, lower_is_better=lower_is_better, label=label,
+                                  low_evidence=low_evidence)
+
+    @property
+    def scores_stale(self) -> bool:
+        """True while the score row shows scores computed before a change of the clock or a pose."""
+        return self.score_row.stale
+
+    def set_scores_stale(self, stale: bool, text: str | None = None) -> None:
+        """Dim the score row with a label ("stale — recomputing" by default) until fresh scores are set."""
+        if text is None:
+            self.score_row.set_stale(stale)
+        else:
+            self.score_row.set_stale(stale, text)
 
     def clear_scores(self) -> None:
         self.score_row.clear_scores()

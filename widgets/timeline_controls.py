@@ -52,7 +52,8 @@ class ControlBar:
         self.scores_check.setEnabled(False)
         self.scores_check.toggled.connect(scores_toggled)
         self.worst_button = _no_focus(QtWidgets.QToolButton(text="Worst ▾"),
-                                      "go to the window with the worst alignment score of an object")
+                                      "go to the window with the worst alignment score of an object "
+                                      "(among windows with enough evidence: events near its edges, motion, in view)")
         self.worst_button.setPopupMode(QtWidgets.QToolButton.InstantPopup)
         self.worst_menu = QtWidgets.QMenu(self.worst_button)
         self.worst_button.setMenu(self.worst_menu)

@@ -1,13 +1,26 @@
 """The timeline's score row: per-object alignment scores over time, each in its object's colour, with
 the worst window of each object marked (x), a cursor and the current window's span; it also keeps the
-control row's "Scores" check box and "Worst ▾" menu in step with the scores shown."""
+control row's "Scores" check box and "Worst ▾" menu in step with the scores shown.
+
+Low-evidence windows (their scores say little about the pose) are drawn apart, as grey rings, and are never
+the worst; a stale row (computed before the clock or a pose changed) is dimmed with a label
+(:mod:`~evpose.widgets.timeline_evidence`)."""
 from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
 
+from evpose.widgets.timeline_evidence import (
+    STALE_ALPHA,
+    STALE_TEXT,
+    StaleLabel,
+    low_evidence_bands,
+    low_evidence_points,
+    no_evidence_windows,
+)
 from evpose.widgets.timeline_style import (
     LEFT_AXIS_W,
+    LOW_EVIDENCE_COLOR,
     RIGHT_AXIS_W,
     ScrubViewBox,
     label_style,
@@ -53,8 +66,13 @@ class ScoreRow:
         self.axis = axis
         self.t_s: np.ndarray | None = None
         self.scores: dict[str, np.ndarray] = {}
+        #: name -> (N,) bool: the window's score has too little evidence (drawn apart, never the worst)
+        self.low_evidence: dict[str, np.ndarray] = {}
         self.items: dict[str, pg.PlotDataItem] = {}
         self.lower_is_better = False
+        #: True while the scores shown predate a change of the clock or a pose
+        self.stale = False
+        self.low_bands: list[pg.LinearRegionItem] = []
         self.glw = white_layout()
         self.vb = ScrubViewBox(scrub, enableMenu=False)
         self.plot: pg.PlotItem = self.glw.addPlot(row=0, col=0, viewBox=self.vb)
@@ -82,9 +100,14 @@ class ScoreRow:
         self.worst_item = pg.ScatterPlotItem(size=9, symbol="x", pen=None)
         self.worst_item.setZValue(15)
         sp.addItem(self.worst_item, ignoreBounds=True)
+        self.low_item = pg.ScatterPlotItem(size=5, symbol="o", pen=pg.mkPen(*LOW_EVIDENCE_COLOR, 200), brush=None)
+        self.low_item.setZValue(-1)
+        sp.addItem(self.low_item)
+        self.stale_label = StaleLabel(self.vb)
 
-    def set_scores(self, t_s, scores: dict, *, lower_is_better: bool = False, label: str = "score") -> None:
-        """Per-object alignment scores over time, drawn in each object's colour.
+    def set_scores(self, t_s, scores: dict, *, lower_is_better: bool = False, label: str = "score",
+                   low_evidence: dict | None = None) -> None:
+        """Per-object alignment scores over time, drawn in each object's colour; shown fresh (not stale).
 
         Parameters
         ----------
@@ -98,27 +121,43 @@ class ScoreRow:
             for distances (``distance_px``): the worst window is the maximum.
         label : str
             Left-axis label, with units.
+        low_evidence : dict name -> (N,) bool, optional
+            Windows whose score of that object has too little evidence
+            (``evpose.core.align.score_table.ScoreTable.low_evidence``): drawn as grey rings off the curve,
+            never the worst.
         """
         t_s = np.asarray(t_s, np.float64).ravel()
-        clean = {}
+        clean, low = {}, {}
         for name, s in scores.items():
             s = np.asarray(s, np.float64).ravel()
             if s.shape != t_s.shape:
                 raise ValueError(f"scores[{name!r}] has {s.size} values for {t_s.size} times")
             clean[name] = s
+            m = np.zeros(s.shape, bool) if not low_evidence or name not in low_evidence else \
+                np.asarray(low_evidence[name], bool).ravel()
+            if m.shape != t_s.shape:
+                raise ValueError(f"low_evidence[{name!r}] has {m.size} values for {t_s.size} times")
+            low[name] = m
         self.clear_scores()
-        self.t_s, self.scores, self.lower_is_better = t_s, clean, bool(lower_is_better)
+        self.t_s, self.scores, self.low_evidence, self.lower_is_better = t_s, clean, low, bool(lower_is_better)
         self.plot.getAxis("left").setLabel(label, **label_style())
         c = self.controls
         for name, s in clean.items():
             item = long_curve(pg.mkPen(self.color(name), width=1.5), name)
             self.plot.addItem(item)   # add before setData: clipping needs the ViewBox
-            item.setData(t_s, s)
+            item.setData(t_s, np.where(low[name], np.nan, s))
             self.items[name] = item
-            act = c.worst_menu.addAction(f"{name}")
+            has_worst = self.worst_index(name) is not None
+            act = c.worst_menu.addAction(f"{name}" if has_worst or not np.isfinite(s).any()
+                                         else f"{name} — no window with enough evidence")
             act.setIcon(swatch(self.color(name)))
+            act.setEnabled(has_worst)
             act.triggered.connect(lambda _=False, n=name: self.goto_worst(n))
-        self.style()
+        self.low_item.setData(*low_evidence_points(t_s, clean, low))
+        self.low_bands = low_evidence_bands(t_s, no_evidence_windows(clean, low))
+        for band in self.low_bands:
+            self.plot.addItem(band, ignoreBounds=True)
+        self.set_stale(False)
         pts = [(self.axis.x_of(t), self.score_at(n, t), n) for n in clean if (t := self.worst_time(n)) is not None]
         self.worst_item.setData([p[0] for p in pts], [p[1] for p in pts],
                                 brush=None, pen=[pg.mkPen(self.color(p[2]), width=2) for p in pts])
@@ -129,14 +168,17 @@ class ScoreRow:
         self.glw.setVisible(has and c.scores_check.isChecked())
 
     def clear_scores(self) -> None:
-        for item in self.items.values():
+        for item in list(self.items.values()) + self.low_bands:
             self.plot.removeItem(item)
         self.items.clear()
-        self.scores = {}
+        self.low_bands = []
+        self.scores, self.low_evidence = {}, {}
         self.t_s = None
         c = self.controls
         c.worst_menu.clear()
         self.worst_item.setData([], [])
+        self.low_item.setData([], [])
+        self.set_stale(False)
         c.scores_check.setEnabled(False)
         c.worst_button.setEnabled(False)
         self.glw.setVisible(False)
@@ -150,12 +192,12 @@ class ScoreRow:
         return self.axis.t_ref_us + int(round(float(self.t_s[i]) * 1e6))
 
     def worst_index(self, name: str) -> int | None:
-        """Index of the worst window of ``name`` (NaN ignored): the minimum, or the maximum when lower is
-        better; None if the object has no defined score."""
+        """Index of the worst window of ``name`` (NaN and low-evidence windows ignored): the minimum, or the
+        maximum when lower is better; None if the object has no defined score with evidence."""
         if name not in self.scores:
             raise KeyError(f"no scores for {name!r}")
         s = self.scores[name]
-        finite = np.isfinite(s)
+        finite = np.isfinite(s) & ~self.low_evidence.get(name, False)
         if not finite.any():
             return None
         masked = np.where(finite, s, -np.inf if self.lower_is_better else np.inf)
@@ -170,9 +212,18 @@ class ScoreRow:
         return self.session.color(name) if name in self.session.object_names else OTHER_COLOR
 
     def style(self) -> None:
-        """The selected object's curve wide and on top, hidden objects' faint."""
+        """The selected object's curve wide and on top, hidden objects' faint; every curve dimmed while stale."""
         sel, hidden = self.session.view.selected, self.session.view.hidden
         for name, item in self.items.items():
             width = 2.5 if name == sel else 1.2
-            item.setPen(pg.mkPen(*self.color(name), 90 if name in hidden else 255, width=width))
+            alpha = STALE_ALPHA if self.stale else 90 if name in hidden else 255
+            item.setPen(pg.mkPen(*self.color(name), alpha, width=width))
             item.setZValue(5 if name == sel else 0)
+
+    def set_stale(self, stale: bool, text: str = STALE_TEXT) -> None:
+        """Mark the scores shown as stale (dimmed, with ``text`` in the corner) or fresh."""
+        self.stale = bool(stale) and bool(self.scores)
+        self.stale_label.show(self.stale, text)
+        for item in (self.worst_item, self.low_item, *self.low_bands):
+            item.setOpacity(0.35 if self.stale else 1.0)
+        self.style()

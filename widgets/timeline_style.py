@@ -13,8 +13,12 @@ ANGULAR_COLOR = (150, 60, 170)
 CURSOR_COLOR = (0, 0, 0)
 SPAN_COLOR = (60, 120, 220)
 HOLE_COLOR = (110, 110, 110, 130)  # trajectory holes: no pose, so no label (grey, hatched)
+LOW_EVIDENCE_COLOR = (140, 140, 140)  # scores without evidence (grey rings; hatched where no object has any)
 DOWNSAMPLE_PER_PX = 2.0          # peak downsampling: min/max of ~2 bins per pixel column
 LEFT_AXIS_W, RIGHT_AXIS_W = 62, 52
+#: Smallest heights of the main row (its bottom axis included) and of the score row, px: the timeline's
+#: minimum height, so that no dock or window size squeezes a plot to a sliver.
+MIN_PLOT_H, MIN_SCORE_H = 120, 72
 
 
 class ScrubViewBox(pg.ViewBox):

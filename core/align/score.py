@@ -24,7 +24,9 @@ so the mean distance hardly changes with the pose; the kernel score tells a 5 mm
 error from the true pose far more often (measured in ``docs/refine.md``).
 
 The score is **undefined** (never 0 or NaN leaking out) when the object is out of view or smaller
-than ``min_pixels`` visible pixels, or fewer than ``min_events`` events fall near it. Pixels
+than ``min_pixels`` visible pixels, or fewer than ``min_events`` events fall near it. A defined score
+also carries its evidence, ``n_edge_events`` (events within ``near_px`` of the edges): how much a
+window can show is judged in :mod:`evpose.core.align.score_evidence`. Pixels
 follow DESIGN section 3 (``[v, u]``, centres at integers), distances are in pixels of the scene's
 (distorted) camera, where the events are. Scoring a whole sequence: :mod:`evpose.core.align.score_table`.
 """
@@ -79,6 +81,8 @@ class ObjectScore:
     n_events_near: int = 0
     n_pixels: int = 0
     reason: str = ""
+    #: events within ``near_px`` of the object's edges (of the events given: a subsample scales it)
+    n_edge_events: int = 0
 
 
 def object_edges(obj_index: np.ndarray, depth_m: np.ndarray, k: int, depth_edge_rel: float = 0.03) -> np.ndarray:
@@ -187,9 +191,10 @@ def score_window(events: EventArray, obj_index: np.ndarray, depth_m: np.ndarray,
         yy, xx = ey[sel] - r0, ex[sel] - c0
         is_near = near[yy, xx]
         n_near = int(is_near.sum())
+        n_edge = int((d_edge[yy, xx] <= near_px).sum())
         if n_near < params.min_events:
             out.append(ObjectScore(False, n_events_near=n_near, n_pixels=n_px,
-                                   reason=f"only {n_near} events near the object"))
+                                   reason=f"only {n_near} events near the object", n_edge_events=n_edge))
             continue
         yy, xx = yy[is_near], xx[is_near]
         dist = float(np.minimum(d_edge[yy, xx], trunc).mean())
@@ -199,7 +204,8 @@ def score_window(events: EventArray, obj_index: np.ndarray, depth_m: np.ndarray,
         sd = np.where(mask, -(d_in - 0.5), d_mask - 0.5)
         score = _kernel_contrast(sd[yy, xx], sd[near], float(params.sigma_px))
         if not math.isfinite(score):
-            out.append(ObjectScore(False, n_events_near=n_near, n_pixels=n_px, reason="degenerate edge map"))
+            out.append(ObjectScore(False, n_events_near=n_near, n_pixels=n_px, reason="degenerate edge map",
+                                   n_edge_events=n_edge))
             continue
-        out.append(ObjectScore(True, score, dist, inside, n_near, n_px))
+        out.append(ObjectScore(True, score, dist, inside, n_near, n_px, n_edge_events=n_edge))
     return out

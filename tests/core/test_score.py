@@ -101,8 +101,10 @@ def test_every_window_true_pose_scores_higher(tiny):
         assert (s_r.data[both] > s_w.data[both]).mean() > 0.7, n
         # hidden data is NaN, visible data finite
         assert np.all(np.isnan(s_r.data[s_r.mask])) and np.all(np.isfinite(s_r.data[~s_r.mask]))
+        # the worst window: the lowest score among windows backed by evidence (tests/core/test_score_evidence.py)
         w = score_table.worst_window(right, n)
-        assert w is not None and right.valid[n][w] and right.score[n][w] == s_r.min()
+        ok = right.informative(n)
+        assert w is not None and ok[w] and right.score[n][w] == s_r.data[ok].min()
         # events near the object: at least min_events where the score is defined, and the count
         # the reason names where too few made it undefined
         near = right.n_events_near[n]
@@ -172,3 +174,14 @@ def test_cli_score_json(tiny_scene_dir):
     w = data["windows"][10]
     assert set(w["objects"]) == {"box", "cylinder", "flatbox"}
     assert {"score", "distance_px", "inside_fraction", "n_events_near", "valid"} <= set(w["objects"]["box"])
+    # the evidence of every window and object, its state; the thresholds used
+    assert {"n_edge_events", "motion_px_s", "in_view_fraction", "state", "evidence_reason"} <= set(w["objects"]["box"])
+    assert set(data["evidence"]) == {"min_edge_events", "min_motion_px", "min_in_view"}
+    for w in data["windows"]:
+        for o in w["objects"].values():
+            assert o["state"] == ("undefined" if not o["valid"] else "low_evidence" if o["evidence_reason"] else "ok")
+    for name, s in data["summary"].items():
+        assert s["n_ok"] + s["n_low_evidence"] == s["n_valid"]
+        assert (s["worst_window"] is None) == (s["worst_note"] is not None)
+        if s["worst_window"] is not None:
+            assert data["windows"][s["worst_window"]]["objects"][name]["state"] == "ok"

@@ -309,6 +309,85 @@ def test_scores_curves_and_worst_window(tl, session, qtbot):
     assert tl.score_items == {} and not tl.worst_button.isEnabled()
 
 
+def test_low_evidence_windows_are_drawn_apart_and_never_the_worst(tl, session, qtbot):
+    from evpose.widgets.timeline_style import LOW_EVIDENCE_COLOR
+
+    t0 = session.time_range[0]
+    t_s = 0.005 + 0.01 * np.arange(80)
+    rng = np.random.default_rng(2)
+    scores = {n: rng.uniform(0.3, 0.9, 80) for n in session.object_names}
+    low = {n: np.zeros(80, bool) for n in session.object_names}
+    scores["box"][42] = -0.5                 # the raw minimum, but a stationary window with ~100 events ...
+    low["box"][42] = True                    # ... low evidence
+    scores["box"][63] = 0.05                 # the worst window with evidence
+    for n in session.object_names:           # a dwell: no object has evidence in windows 20-29
+        low[n][20:30] = True
+        scores[n][20:30] = 0.0
+    low["flatbox"][:] = True                 # never any evidence
+    tl.set_scores(t_s, scores, low_evidence=low)
+    assert tl.worst_time("box") == t0 + 635_000
+    assert tl.worst_time("flatbox") is None
+    act = {a.text().split(" ")[0]: a for a in tl.worst_menu.actions()}
+    assert act["box"].isEnabled() and act["box"].text() == "box"
+    assert not act["flatbox"].isEnabled() and "no window with enough evidence" in act["flatbox"].text()
+    with qtbot.waitSignal(tl.worstRequested):
+        act["box"].trigger()
+    assert session.view.t_us == t0 + 635_000
+    assert tl.goto_worst("flatbox") is None
+    # not on the object's curve (a gap there), but grey rings at their scores
+    y = tl.score_items["box"].yData
+    assert np.isnan(y[42]) and np.isnan(y[20:30]).all() and y[63] == scores["box"][63]
+    assert np.isnan(tl.score_items["flatbox"].yData).all()
+    xs, ys = tl.score_row.low_item.getData()
+    assert (t_s[42], -0.5) in set(zip(xs.tolist(), ys.tolist()))
+    assert len(xs) == 1 + 3 * 10 + (80 - 10)
+    assert tl.score_row.low_item.opts["pen"].color().getRgb()[:3] == LOW_EVIDENCE_COLOR
+    # where no object has evidence: one hatched band over the run, half-way to the neighbouring windows
+    bands = tl.score_row.low_bands
+    assert len(bands) == 1 and bands[0].getRegion() == pytest.approx((0.2, 0.3))
+    assert bands[0].brush.style() == QtCore.Qt.BDiagPattern
+    # the tables have evidence everywhere again: no grey left
+    tl.set_scores(t_s, scores)
+    assert tl.score_row.low_bands == [] and len(tl.score_row.low_item.getData()[0]) == 0
+    assert tl.worst_time("box") == t0 + 425_000
+    with pytest.raises(ValueError):
+        tl.set_scores(t_s, scores, low_evidence={"box": np.ones(3, bool)})
+
+
+def test_a_stale_score_row_is_dimmed_with_a_label(tl, session, qtbot):
+    from evpose.widgets.timeline_evidence import STALE_ALPHA
+
+    t_s = 0.005 + 0.01 * np.arange(80)
+    tl.set_scores_stale(True)
+    assert not tl.scores_stale                        # nothing shown: nothing stale
+    scores = {n: np.linspace(0.2, 0.8, 80) for n in session.object_names}
+    tl.set_scores(t_s, scores)
+    label = tl.score_row.stale_label
+    assert not tl.scores_stale and not label.item.isVisible()
+    assert all(i.opts["pen"].color().alpha() == 255 for i in tl.score_items.values())
+    tl.set_scores_stale(True)
+    assert tl.scores_stale and label.item.isVisible() and label.text == "stale — recomputing"
+    assert all(i.opts["pen"].color().alpha() == STALE_ALPHA for i in tl.score_items.values())
+    session.select("box")                             # restyling keeps it dimmed
+    assert tl.score_items["box"].opts["pen"].color().alpha() == STALE_ALPHA
+
+    def label_pixels() -> int:
+        """Pixels of the label's colour (dark orange, (150, 60, 0)) in the row's top strip."""
+        qtbot.wait(20)
+        img = tl.score_glw.grab().toImage()
+        rgb = np.array([[img.pixelColor(x, y).getRgb()[:3] for x in range(0, img.width())]
+                        for y in range(0, min(img.height(), 30))], np.int32)
+        return int((np.abs(rgb - (150, 60, 0)).max(axis=-1) <= 20).sum())
+
+    drawn = label_pixels()                            # the label is drawn ...
+    label.item.setVisible(False)
+    assert drawn > 20 + label_pixels()                # ... (its pixels, not a curve's)
+    label.item.setVisible(True)
+    tl.set_scores(t_s, scores)                        # fresh scores: fresh row
+    assert not tl.scores_stale and not label.item.isVisible()
+    assert all(i.opts["pen"].color().alpha() == 255 for i in tl.score_items.values())
+
+
 # ---------------------------------------------------------------------- scale and looks
 def test_a_million_bins_stay_fast(tl, session, qtbot):
     n = 1_000_000  # 1000 s at 1 ms
