@@ -159,13 +159,13 @@ def _prior(lay: Layout, p: JointParams, radii: np.ndarray, n_assoc: int) -> np.n
 
 
 def _bounds(fit: _Fit, d, sigma: float, p: JointParams, n: int) -> np.ndarray:
-    """Largest change of each parameter in one step: what moves the edges by ``p.step_sigmas * sigma`` px
-    (objects and hand-eye at their median depth; the clock at the associated events' median image speed), so a
-    direction the events barely see (rotation about a symmetry axis) cannot run away within a step."""
+    """Largest change of each pose parameter in one step (objects and hand-eye): what moves the edges by
+    ``p.step_sigmas * sigma`` px at the associated samples' median depth, so a direction the events barely see
+    (rotation about a symmetry axis) cannot run away within a step. The clock is bounded by the trust region on
+    the edge motion alone."""
     move = p.step_sigmas * sigma
     z = np.median(d.P_c[:, 2]) if len(d.s) else 0.5
     px_per_mm = float(fit.K[0, 0]) * 1e-3 / max(float(z), 0.05)
-    speed = np.median(np.linalg.norm(d.v[:, :2], axis=1) / np.maximum(d.P_c[:, 2], 0.05)) * float(fit.K[0, 0])
     b = np.full(n, move / px_per_mm)
     b[:2] = np.inf
     return b

@@ -4,17 +4,14 @@ the analytic derivatives against finite differences, the fit on rendered scenes 
 (final estimate at the top, stages nested) and ``refine --joint --apply`` as one undo step."""
 from __future__ import annotations
 
-import argparse
-import io
 import json
 import shutil
-from contextlib import redirect_stdout
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evpose.core.align import joint_fit, joint_model
+from evpose.core.align import joint_fit
 from evpose.core.align.joint_model import EdgeData, he_delta, jacobian
 from evpose.core.align.joint_result import JointParams
 from evpose.core.align.joint_solve import Layout, kernel_curvature, kernel_derivs
@@ -24,6 +21,7 @@ from evpose.core.data.geometry import inv_T, make_T, pose_error
 from evpose.core.data.scene import Scene
 from evpose.core.document.history import History
 from evpose.core.sim.synth import load_ground_truth
+from tests.core.test_sync import _cli
 from tests.evpose_testing import half_davis_camera
 
 K = np.array([[146.3, 0.0, 86.1], [0.0, 146.6, 64.8], [0.0, 0.0, 1.0]])
@@ -198,18 +196,6 @@ def test_hand_eye_error_is_recovered(mounted):
 
 
 # ---------------------------------------------------------------------------- CLI contract
-def _cli(argv) -> tuple[int, str]:
-    from evpose.app.cli.align import add_align_parsers
-
-    p = argparse.ArgumentParser(prog="evpose")
-    add_align_parsers(p.add_subparsers(dest="command", required=True))
-    args = p.parse_args(argv)
-    buf = io.StringIO()
-    with redirect_stdout(buf):
-        rc = args.func(args)
-    return rc, buf.getvalue()
-
-
 def test_refine_joint_apply_is_one_undo_step(wrong, tmp_path):
     folder = tmp_path / "scene"
     shutil.copytree(wrong, folder)
