@@ -18,15 +18,19 @@ __all__ = ["add_import_parser", "cmd_import", "FORMAT_NAMES"]
 
 #: The formats of :data:`evpose.core.importers.FORMATS`, in its order, named here so that building the
 #: parser does not load the readers (a test keeps the two equal).
-FORMAT_NAMES = ("epose-bag", "epose-export", "dsec", "rpg", "ycbev", "npz")
+FORMAT_NAMES = ("epose-bag", "epose-export", "dsec", "rpg", "ycbev", "npz", "bop", "aedat4", "prophesee")
 
 _EPILOG = """formats and their sources:
-  epose-bag     REC.bag                         [--assets DIR --scene S --sequence Q | --camera --objects]
+  epose-bag     REC.bag | ROS2_BAG_DIR | REC.mcap | REC.db3  [--assets DIR --scene S --sequence Q | --camera --objects]
   epose-export  FOLDER_WITH_NNNN_data.mat       [--assets DIR --scene S] [--objects] [--classes] [--one-based]
   dsec          events.h5 traj.csv|txt cam_to_cam.yaml (or a DSEC sequence folder) [--events-mode]
   rpg           FOLDER (events.txt groundtruth.txt calib.txt) or the files
   ycbev         SEQUENCE_FOLDER (scene_gt.json) [EVENTS.int32.zst] [calib_prophesee.json] [--models DIR]
   npz           REC.npz (x y t p + t_us position quaternion | T_base_cam [+ K dist width height])
+  bop           BOP_DIR | BOP_DIR/SPLIT --scene ID (or the scene folder) [--models DIR] [--frame-us N]:
+                event frames read back as events; timing from scene_times.json when present
+  aedat4        REC.aedat4 [TRAJECTORY [CALIB]]  (sensor size from the file; its pose stream without TRAJECTORY)
+  prophesee     REC.raw|REC.dat [TRAJECTORY [CALIB]]  (EVT 2.0 / EVT 3.0 / DAT; sensor size from the header)
 --objects takes name=mesh[:T_base_obj.json],... (T is a 4x4 JSON list, metres).
 Every import writes import_report.json into the scene: what was assumed, repaired, dropped."""
 

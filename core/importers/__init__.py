@@ -2,7 +2,9 @@
 
 Formats (one module each): ``epose-bag`` (E-POSE ROS1 bags), ``epose-export`` (E-POSE ``NNNN_data.mat``
 windows), ``dsec`` (DSEC event HDF5 + trajectory + calibration), ``rpg`` (Event Camera Dataset text files),
-``ycbev`` (YCB-Ev zstd events + BOP annotations), ``npz`` (NumPy arrays).
+``ycbev`` (YCB-Ev zstd events + BOP annotations), ``npz`` (NumPy arrays), ``bop`` (a BOP scene of event
+frames, e.g. evpose's BOP export), ``aedat4`` (iniVation DV recordings), ``prophesee`` (Metavision EVT 2.0 /
+EVT 3.0 ``.raw`` and ``.dat``). ``epose-bag`` also reads ROS2 bags (sqlite3 or MCAP).
 
 Every importer builds the scene atomically (nothing at ``out`` unless it succeeded), streams the events with
 bounded memory, never modifies its inputs, and writes ``import_report.json`` listing what was assumed or
@@ -39,6 +41,9 @@ FORMATS = {
     "rpg": ("rpg", "import_rpg"),
     "ycbev": ("ycbev", "import_ycbev"),
     "npz": ("npz", "import_npz"),
+    "bop": ("bop", "import_bop"),
+    "aedat4": ("aedat4", "import_aedat4"),
+    "prophesee": ("prophesee", "import_prophesee"),
 }
 
 

@@ -1,4 +1,4 @@
-"""E-POSE raw recordings: ROS1 bags with ``/dvs/events`` and ``/dvs/pose`` (``evpose import epose-bag``).
+"""E-POSE raw recordings: ROS1 bags and ROS2 bags with ``/dvs/events`` and ``/dvs/pose`` (``evpose import epose-bag``).
 
 Topics
 ------
@@ -8,10 +8,16 @@ Topics
                  x y z w) -> ``trajectory.csv`` with ``frame = "cam"``.
 ``/dvs/vel``     optional, counted and ignored.
 
-The bag is read with the pure-Python ``rosbags`` reader (no ROS install); the message payloads are decoded
-with numpy on the ROS1 byte layout (:mod:`evpose.core.importers.epose_bag_codec`). A connection whose message
-definition hash differs from ``dvs_msgs/EventArray``'s (``5e8beee5a6c107e504c2e78903c224b8``) is decoded with
-rosbags from the bag's own definition (slow path, reported).
+SRC is a ROS1 ``.bag`` file, a ROS2 bag folder (``metadata.yaml`` + sqlite3 ``.db3`` or ``.mcap`` storage) or a
+bare ``.db3`` / ``.mcap`` file. Every kind is read with the pure-Python ``rosbags`` reader for any bag
+(``rosbags.highlevel.AnyReader``, rosbags >= 0.11 for its ``default_typestore`` and MCAP storage; no ROS install;
+sqlite3 files are opened ``immutable``, read-only), which registers the message types from the bag's own
+definitions (a ROS2 bag without them falls back to ``dvs_msgs`` registered from its ``.msg`` text). The
+payloads are decoded with numpy on the ROS1 byte layout (:mod:`evpose.core.importers.epose_bag_codec`) or
+the ROS2 CDR layout (:mod:`evpose.core.importers.epose_bag_cdr`). A connection whose ``EventArray``
+definition differs from ``dvs_msgs``' (ROS1: its hash is not ``5e8beee5a6c107e504c2e78903c224b8``; ROS2: its
+fields differ) is decoded by rosbags from the bag's own definition (slow path, reported). The same topic,
+type and value checks apply to both ROS versions.
 
 Times: an event's ``ts`` (ROS time) -> int64 µs as ``sec * 10**6 + (nsec + 500) // 1000`` (ns rounded half up).
 Pose samples take ``header.stamp`` (``--pose-time bag``: the bag record time); a pose topic whose header stamps
@@ -29,6 +35,7 @@ import numpy as np
 from evpose.core.data.camera import CameraModel
 from evpose.core.importers.calibration import load_camera
 from evpose.core.importers.epose_assets import load_epose_assets
+from evpose.core.importers.epose_bag_cdr import dvs_typestore_ros2, parse_event_array_cdr, parse_pose_stamped_cdr
 from evpose.core.importers.epose_bag_codec import (
     EVENT_ARRAY_MD5,
     EVENT_ARRAY_TYPE,
@@ -48,15 +55,18 @@ POSE_FIELDS = ("header.stamp", "pose.position.x", "pose.position.y", "pose.posit
                "pose.orientation.y", "pose.orientation.z", "pose.orientation.w")
 
 
+_BAG_KINDS = "a ROS1 .bag file, a ROS2 bag folder (metadata.yaml) or a ROS2 .db3/.mcap file"
+
+
 def import_epose_bag(sources, out, ctx: ImportContext) -> dict:
-    """Import one E-POSE ROS1 bag into a scene folder; returns the summary (see ``result_summary``)."""
-    from rosbags.rosbag1 import Reader
+    """Import one E-POSE bag (ROS1 ``.bag``, ROS2 folder, ``.db3`` or ``.mcap``) into a scene folder; returns the
+    summary (see ``result_summary``)."""
+    from rosbags.highlevel import AnyReader
 
     if len(sources) != 1:
-        raise ImportFailure(", ".join(map(str, sources)) or "(none)", "(arguments)", "SRC", "give exactly one .bag file")
-    bag = Path(sources[0])
-    if not bag.is_file():
-        raise ImportFailure(bag, "(file)", "-", "no such file")
+        raise ImportFailure(", ".join(map(str, sources)) or "(none)", "(arguments)", "SRC", f"give exactly one bag: "
+                            f"{_BAG_KINDS}")
+    bag = _check_bag_path(Path(sources[0]))
     opts = ctx.options
     assets = load_epose_assets(ctx, opts.assets, opts.scene, opts.sequence) if opts.assets else None
     camera = assets.camera if assets else None
@@ -65,8 +75,9 @@ def import_epose_bag(sources, out, ctx: ImportContext) -> dict:
     elif camera is not None and opts.width and opts.height:
         camera = CameraModel(camera.K, camera.dist, opts.width, opts.height, source=camera.source)
 
-    reader = Reader(bag)
-    with wrap_errors(bag, "(bag header/index)", "-", "not a readable ROS1 bag"):
+    kind = "ROS1" if bag.is_file() and bag.suffix.lower() == ".bag" else "ROS2"
+    with wrap_errors(bag, "(bag header/index)", "-", f"not a readable {kind} bag"):
+        reader = AnyReader([bag], default_typestore=dvs_typestore_ros2())
         reader.open()
     try:
         return _import_open_bag(reader, bag, out, ctx, assets, camera)
@@ -77,14 +88,31 @@ def import_epose_bag(sources, out, ctx: ImportContext) -> dict:
             pass
 
 
+def _check_bag_path(bag: Path) -> Path:
+    """Refuse a missing path, a special file or a file that is none of the bag kinds (before anything is read)."""
+    from evpose.core.data.input_files import InputFileError, check_regular
+
+    if bag.is_dir():
+        if not (bag / "metadata.yaml").is_file():
+            raise ImportFailure(bag, "(folder)", "metadata.yaml", f"not a ROS2 bag folder (expected {_BAG_KINDS})")
+        return bag
+    try:
+        check_regular(bag)
+    except InputFileError as exc:
+        raise ImportFailure(bag, "(file)", "-", exc.reason) from None
+    if bag.suffix.lower() not in (".bag", ".db3", ".mcap"):
+        raise ImportFailure(bag, "(file)", "SRC", f"unknown bag suffix {bag.suffix!r} (expected {_BAG_KINDS})")
+    return bag
+
+
 def _import_open_bag(reader, bag: Path, out, ctx: ImportContext, assets, camera) -> dict:
     """Check the topics, stream the events into the scene, build the trajectory, add the objects, commit."""
     opts, rep = ctx.options, ctx.report
     ev_conns, pose_conns = _topic_connections(reader, bag, opts)
-    slow, slow_ts = _slow_decoder(ev_conns, bag, ctx)
+    slow = _slow_connections(reader, ev_conns, ctx)
     n_ev_msgs = _describe_bag(reader, ev_conns, pose_conns, ctx)
     with SceneBuilder(out, ctx) as sb:
-        msgs = _BagMessages(ctx, bag, ev_conns, slow, slow_ts, n_ev_msgs, camera)
+        msgs = _BagMessages(ctx, bag, ev_conns, slow, reader, n_ev_msgs, camera)
         msgs.read(reader, ev_conns + pose_conns, sb)
         sb.finish_events(msgs.sink, bag)
         camera = msgs.camera
@@ -121,20 +149,19 @@ def _topic_connections(reader, bag: Path, opts) -> tuple[list, list]:
     return ev_conns, pose_conns
 
 
-def _slow_decoder(ev_conns, bag: Path, ctx: ImportContext):
-    """``(ids of the event connections with an unfamiliar definition, rosbags typestore for them or None)``."""
-    slow = {c.id for c in ev_conns if c.digest != EVENT_ARRAY_MD5}
-    if not slow:
-        return slow, None
-    ctx.report.warn(f"{ctx.options.events_topic}: message definition hash differs from dvs_msgs/EventArray; decoding "
-                    "with rosbags from the bag's own definition (slow path)")
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    slow_ts = get_typestore(Stores.ROS1_NOETIC)
-    c0 = next(c for c in ev_conns if c.id in slow)
-    with wrap_errors(bag, f"connection {c0.id}", "message_definition", "cannot parse"):
-        slow_ts.register(get_types_from_msg(c0.msgdef.data, c0.msgtype))
-    return slow, slow_ts
+def _slow_connections(reader, ev_conns, ctx: ImportContext) -> set:
+    """Ids of the event connections whose ``EventArray`` definition is not ``dvs_msgs``' (decoded by rosbags)."""
+    if reader.is2:
+        ours = dvs_typestore_ros2().fielddefs
+        theirs = reader.typestore.fielddefs
+        same = all(theirs.get(t) == ours[t] for t in (EVENT_ARRAY_TYPE, "dvs_msgs/msg/Event"))
+        slow = set() if same else {c.id for c in ev_conns}
+    else:
+        slow = {c.id for c in ev_conns if c.digest != EVENT_ARRAY_MD5}
+    if slow:
+        ctx.report.warn(f"{ctx.options.events_topic}: message definition differs from dvs_msgs/EventArray; decoding "
+                        "with rosbags from the bag's own definition (slow path)")
+    return slow
 
 
 def _describe_bag(reader, ev_conns, pose_conns, ctx: ImportContext) -> int:
@@ -146,17 +173,19 @@ def _describe_bag(reader, ev_conns, pose_conns, ctx: ImportContext) -> int:
                - {opts.events_topic, opts.pose_topic}}
     if n_other:
         rep.assume(f"ignored topics: {', '.join(f'{t} ({n} messages)' for t, n in sorted(n_other.items()))}")
-    rep.details["bag"] = {"events_messages": n_ev_msgs, "pose_messages": sum(c.msgcount for c in pose_conns),
-                          "duration_s": reader.duration * 1e-9}
+    rep.details["bag"] = {"ros_version": 2 if reader.is2 else 1, "events_messages": n_ev_msgs,
+                          "pose_messages": sum(c.msgcount for c in pose_conns), "duration_s": reader.duration * 1e-9}
     return n_ev_msgs
 
 
 class _BagMessages:
     """The messages of a bag in file order: events streamed into the scene's sink, pose samples kept."""
 
-    def __init__(self, ctx: ImportContext, bag: Path, ev_conns, slow: set, slow_ts, n_ev_msgs: int,
+    def __init__(self, ctx: ImportContext, bag: Path, ev_conns, slow: set, reader, n_ev_msgs: int,
                  camera: CameraModel | None):
-        self.ctx, self.bag, self.slow, self.slow_ts, self.n_ev_msgs = ctx, bag, slow, slow_ts, n_ev_msgs
+        self.ctx, self.bag, self.slow, self.reader, self.n_ev_msgs = ctx, bag, slow, reader, n_ev_msgs
+        self.parse_events = parse_event_array_cdr if reader.is2 else parse_event_array
+        self.parse_pose = parse_pose_stamped_cdr if reader.is2 else parse_pose_stamped
         self.ids = {c.id for c in ev_conns}
         self.camera = camera
         self.sink = None
@@ -187,10 +216,10 @@ class _BagMessages:
         ctx, bag = self.ctx, self.bag
         rec = f"message {self.i_ev} on {ctx.options.events_topic}"
         if conn.id in self.slow:
-            d = _slow_event_array(self.slow_ts, raw, conn.msgtype, bag, rec)
+            d = _slow_event_array(self.reader, raw, conn.msgtype, bag, rec)
         else:
             try:
-                d = parse_event_array(raw)
+                d = self.parse_events(raw)
             except MessageError as exc:
                 raise ImportFailure(bag, rec, exc.field, str(exc)) from None
         self.sizes[(d["width"], d["height"])] = self.sizes.get((d["width"], d["height"]), 0) + 1
@@ -210,7 +239,7 @@ class _BagMessages:
     def _pose(self, t_bag, raw) -> None:
         rec = f"message {self.i_pose} on {self.ctx.options.pose_topic}"
         try:
-            ts_us, v = parse_pose_stamped(raw)
+            ts_us, v = self.parse_pose(raw)
         except MessageError as exc:
             raise ImportFailure(self.bag, rec, exc.field, str(exc)) from None
         self.pose_t.append(ts_us)
@@ -256,10 +285,10 @@ def _camera_from_message(ctx: ImportContext, bag: Path, d: dict) -> CameraModel:
                         "calibration")
 
 
-def _slow_event_array(typestore, raw, msgtype: str, bag: Path, rec: str) -> dict:
+def _slow_event_array(reader, raw, msgtype: str, bag: Path, rec: str) -> dict:
     """rosbags deserialisation (one Python object per event) for unfamiliar EventArray definitions."""
     with wrap_errors(bag, rec, "events", "cannot deserialise"):
-        m = typestore.deserialize_ros1(raw, msgtype)
+        m = reader.deserialize(raw, msgtype)
         ev = m.events
         n = len(ev)
         x = np.fromiter((e.x for e in ev), np.int64, n)

@@ -27,6 +27,11 @@ class ImportFailure(InputError):
 _WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
 
 
+def _one_line(exc: BaseException) -> str:
+    """The exception's text on one line (parsers such as YAML's report over several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 @contextlib.contextmanager
 def wrap_errors(file, record: str = "(file)", fld: str = "-", what: str = ""):
     """Turn any exception raised inside into :class:`ImportFailure` naming ``file``/``record``/``field``.
@@ -42,14 +47,14 @@ def wrap_errors(file, record: str = "(file)", fld: str = "-", what: str = ""):
     except OSError as exc:
         if exc.errno in _WRITE_ERRNOS:     # the output is full or read-only: not the input's fault
             raise
-        msg = str(exc) or type(exc).__name__
+        msg = _one_line(exc)
         raise ImportFailure(file, record, fld, f"{what + ': ' if what else ''}{msg} ({type(exc).__name__})") from None
     except MemoryError:
         raise ImportFailure(file, record, fld, f"{what or 'data'} claims an impossible size (out of memory)") from None
     except RecursionError:
         raise ImportFailure(file, record, fld, f"{what or 'data'} is nested too deeply") from None
     except Exception as exc:  # noqa: BLE001 - the point is to catch everything a corrupt file can cause
-        msg = str(exc) or type(exc).__name__
+        msg = _one_line(exc)
         if what:
             msg = f"{what}: {msg}"
         raise ImportFailure(file, record, fld, f"{msg} ({type(exc).__name__})") from None
