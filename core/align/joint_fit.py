@@ -297,6 +297,11 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
         beta = b
         totals.append(total.copy())
     cov, _ = _covariance(fit, sigmas[-1], beta, lay, params, total) if beta is not None else (None, None)
+    # what the two finest widths still disagree on: a bias that shrinks with the kernel width (events on one side of
+    # textured edges) is an error the spread between windows cannot show; it is added in quadrature
+    shift = totals[-1] - totals[-2] if len(totals) >= 2 else np.zeros_like(total)
+    if cov is not None:
+        cov = cov + np.diag(shift ** 2)
     if cov is not None and params.clock and params.skew == "auto":
         sk = math.sqrt(cov[1, 1]) if np.isfinite(cov[1, 1]) else math.inf
         if not (sk <= SKEW_MAX_STD_PPM or abs(total[1]) > SKEW_SIGMAS * sk):
@@ -305,16 +310,13 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
             lay = _layout(len(names), params, names, False, result.held)
             _level(fit, sigmas[-1], lay, params, result, total, t_start, progress, cancel)
             cov, _ = _covariance(fit, sigmas[-1], beta, lay, params, total)
+            if cov is not None:
+                cov = cov + np.diag(shift ** 2)
             result.skew_std_ppm = sk
         else:
             result.skew_estimated = True
     elif params.clock and params.skew == "fit":
         result.skew_estimated = True
-    if cov is not None and len(totals) >= 2:
-        # what the two finest widths still disagree on: a bias that shrinks with the kernel width (events on one
-        # side of textured edges) is an error the spread between windows cannot show; it is added in quadrature
-        shift = totals[-1] - totals[-2]
-        cov = cov + np.diag(shift ** 2)
     _finish(scene, fit, result, T_start, clock0, sigmas[-1], beta, cov, lay, total)
     result.runtime_s = time.perf_counter() - t_start
     if progress is not None:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.core.importers.epose_bag_codec import EVENT_ARRAY_TYPE, MessageError
+from evpose.core.importers.epose_bag_codec import MessageError, dvs_typestore
 from evpose.core.importers.time_units import ros_time_to_us
 
 #: ``.msg`` text of the ROS2 port of ``dvs_msgs`` (``time`` is ``builtin_interfaces/Time``).
@@ -36,14 +36,7 @@ _REST = np.dtype({"names": ["x", "y", "sec", "nsec", "p"], "formats": ["<u2", "<
 
 def dvs_typestore_ros2():
     """A rosbags ROS2 (Humble) typestore with ``dvs_msgs/msg/Event`` and ``EventArray`` registered from .msg text."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
-    types = {}
-    types.update(get_types_from_msg(EVENT_MSG_ROS2, "dvs_msgs/msg/Event"))
-    types.update(get_types_from_msg(EVENT_ARRAY_MSG_ROS2, EVENT_ARRAY_TYPE))
-    ts.register(types)
-    return ts
+    return dvs_typestore("ROS2_HUMBLE", EVENT_MSG_ROS2, EVENT_ARRAY_MSG_ROS2)
 
 
 def _align(off: int, n: int) -> int:

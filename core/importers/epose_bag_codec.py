@@ -33,14 +33,16 @@ class MessageError(ValueError):
 
 
 
-def dvs_typestore():
-    """A rosbags ROS1 typestore with ``dvs_msgs/msg/Event`` and ``dvs_msgs/msg/EventArray`` registered."""
+def dvs_typestore(store: str = "ROS1_NOETIC", event_msg: str | None = None, array_msg: str | None = None):
+    """A rosbags typestore (``store``: a name of ``rosbags.typesys.Stores``; default ROS1 Noetic) with
+    ``dvs_msgs/msg/Event`` and ``dvs_msgs/msg/EventArray`` registered from their .msg text (default the ROS1
+    definitions)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    ts = get_typestore(Stores.ROS1_NOETIC)
+    ts = get_typestore(getattr(Stores, store))
     types = {}
-    types.update(get_types_from_msg(EVENT_MSG, "dvs_msgs/msg/Event"))
-    types.update(get_types_from_msg(EVENT_ARRAY_MSG, EVENT_ARRAY_TYPE))
+    types.update(get_types_from_msg(event_msg or EVENT_MSG, "dvs_msgs/msg/Event"))
+    types.update(get_types_from_msg(array_msg or EVENT_ARRAY_MSG, EVENT_ARRAY_TYPE))
     ts.register(types)
     return ts
 
