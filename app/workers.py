@@ -155,7 +155,9 @@ class Job(QtCore.QRunnable):
         from evpose.core.data.events import Cancelled
 
         try:
-            result = self.fn(progress=lambda f, m="": self.signals.progress.emit(float(f), str(m)),
+            # a stage that cannot size its step reports None: -1 keeps the bar where it is (message only)
+            result = self.fn(progress=lambda f, m="": self.signals.progress.emit(-1.0 if f is None else float(f),
+                                                                                   str(m)),
                              cancel=self._cancel.is_set)
         except Cancelled:
             self.signals.failed.emit("cancelled", "")
@@ -178,5 +180,6 @@ def progress_dialog(parent, title: str, label: str, job: Job, min_duration_ms: i
     dlg.setAutoClose(False)
     dlg.setAutoReset(False)
     dlg.canceled.connect(job.cancel)
-    job.signals.progress.connect(lambda f, m: (dlg.setValue(int(f * 1000)), dlg.setLabelText(m or dlg.labelText())))
+    job.signals.progress.connect(lambda f, m: (f >= 0 and dlg.setValue(int(f * 1000)),
+                                               dlg.setLabelText(m or dlg.labelText())))
     return dlg

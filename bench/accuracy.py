@@ -23,7 +23,8 @@ Sections
    8 s scenes at the full 346x260 resolution; and how well the reported standard error
    (``SyncResult.offset_std_us``) describes the actual errors. Then the second stage on all of
    these scenes: the offset and skew from event/edge alignment
-   (:func:`evpose.core.align.sync_edges.refine_offset_from_sync`, ``evpose sync --edges``) with 12 and 24 windows.
+   (:func:`evpose.core.align.sync_edges.refine_offset_from_sync`, the clock-only edge stage that ``evpose sync
+   --edges`` ran before issue 15; now the joint fit of section 6) with 12 and 24 windows.
 2. **Skew** on 20 s sequences: rate-level scenes (events drawn with a rate proportional to the
    camera's image speed, ~330 k ev/s) with skews up to ±1000 ppm at 4 / 8 / 16 segments, and
    rendered 20 s scenes with -150 / +200 ppm.
@@ -373,7 +374,7 @@ def bench_uncertainty():
           "  adds to it, so |error| / sigma above 1 is the share of the error the rate model does not explain.")
 
 
-EDGE_VARIANTS = (("rate ML -> edges, 12 windows", 12), ("rate ML -> edges, 24 windows (sync --edges)", 24))
+EDGE_VARIANTS = (("rate ML -> edges, 12 windows", 12), ("rate ML -> edges, 24 windows (clock only)", 24))
 
 
 def _edge_group(name: str) -> str:

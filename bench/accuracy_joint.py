@@ -31,6 +31,7 @@ errors (|error| / sigma, median, and the share within 2 sigma) and the run time 
 """
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -183,6 +184,8 @@ def bench_joint(scenes: dict, table, ycb_scene=None, separate: bool = True) -> d
         res["joint"] = run_joint(scene, gt, rate["rate"])
         res["joint"]["runtime_s"] += rate["runtime_s"]
         scene.close()
+        print(f"  [{n}] " + "; ".join(f"{m}: clock {_fmt(r['clock_err_us'])} us, poses {_pose_cell(r['poses'])}, "
+                                      f"{r['runtime_s']:.1f} s" for m, r in res.items()), file=sys.stderr, flush=True)
         gen = gt["generator"]
         label = f"{n.split('_')[1]} {gen['speed_mps']:g} m/s {gen['duration_s']:g} s"
         doc["scenes"][n] = {}

@@ -405,6 +405,9 @@ def child(args) -> dict:
         res["tracemalloc_top"] = [(s.size / 2**20, s.count, [f"{f.filename.replace(code, '')}:{f.lineno}"
                                                             for f in s.traceback[:4]]) for s in stats]
     window.close()
+    import shutil
+
+    shutil.rmtree(tmp, ignore_errors=True)          # the private settings folder this run made
     return res
 
 

@@ -70,8 +70,9 @@ def add_align_parsers(subparsers) -> None:
     s.add_argument("--curve", action="store_true", help="include the correlation curve in the JSON")
     s.add_argument("--edges", action="store_true",
                    help="then fit offset (and skew) together with the object poses from event/edge alignment, "
-                        "started at the rate estimate and kept within 3 of its standard errors (the final estimate is "
-                        "the top level of the JSON, each stage under 'stages'; --apply stores the clock)")
+                        "started at the rate estimate; refused when it moves further than 3 of the rate's standard "
+                        "errors or 5 ms, whichever is larger (the final estimate is the top level of the JSON, each "
+                        "stage under 'stages'; --apply stores the clock)")
     s.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_sync)

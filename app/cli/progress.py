@@ -39,7 +39,9 @@ class Progress:
         self.leave = leave
         self.bar = None
 
-    def __call__(self, fraction: float, message: str = "") -> None:
+    def __call__(self, fraction: float | None, message: str = "") -> None:
+        """Move the bar to ``fraction`` (0..1; None keeps it where it is: a stage reporting progress within a
+        step it cannot size) and show ``message``."""
         if not self.enabled:
             return
         if self.bar is None:
@@ -47,7 +49,8 @@ class Progress:
 
             self.bar = tqdm(total=STEPS, desc=self.desc, unit="‰", file=sys.stderr, leave=self.leave,
                             dynamic_ncols=True, bar_format=BAR_FORMAT)
-        self.bar.update(max(0, int(round(fraction * STEPS)) - self.bar.n))
+        if fraction is not None:
+            self.bar.update(max(0, int(round(fraction * STEPS)) - self.bar.n))
         if message:
             self.bar.set_postfix_str(message, refresh=False)
 

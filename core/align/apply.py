@@ -54,8 +54,8 @@ def apply_joint_result(history, scene, result, text: str = "refine clock and pos
     changed = False
     with history.group(text):
         if clock and p.clock:
-            apply_clock_estimate(history, scene, result.offset_us,
-                                 result.skew_ppm if result.skew_estimated else None, text)
+            # the total clock the fit used: its own skew, or the start's it kept (for sync, the rate estimate's)
+            apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
             changed = True
         if poses:
             for name, o in result.objects.items():

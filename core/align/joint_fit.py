@@ -11,8 +11,9 @@ objects by what stays put in the base frame, the hand-eye by what stays put in t
 Method: coarse to fine over the kernel widths (as the pose refinement). At each width the events are associated
 with their nearest visible edge sample at the current estimate; the parameter step is the maximiser of the
 objective with that association fixed and the distances linearised (:func:`evpose.core.align.joint_solve.solve_step`:
-analytic derivatives, :mod:`evpose.core.align.joint_model`), and it is kept only when it raises the objective with
-a fresh association (full, half or quarter step). Joint optimisation rather than alternation: alternating the
+analytic derivatives, :mod:`evpose.core.align.joint_model`), then the events are associated again at the new
+estimate; a width's result is kept only when it raises that width's objective with a fresh association (else the
+width's start is restored). Joint optimisation rather than alternation: alternating the
 clock and the poses converges slowly along the directions where they trade off (an offset on a straight move
 looks like a shift along the motion) and its per-stage standard errors ignore that trade-off; the joint
 curvature carries it.
@@ -178,7 +179,7 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
     level's result is kept when it raises the level's objective with a fresh association, else the level's start
     is restored. Returns the level's beta, or None without events."""
     state0, total0 = fit.state, total.copy()
-    beta, j0 = None, None
+    beta, j0, converged = None, None, False
     for k in range(p.outer_per_level + 1):
         if cancel is not None and cancel():
             raise Cancelled("joint refinement cancelled")
@@ -188,16 +189,16 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
             return beta
         if beta is None:
             beta = _beta(d.s, d.outer, sigma)
-        j = fit.value(d, sigma, beta)
+        j = fit.value(d, sigma, beta)                   # the objective of the current state
         if j0 is None:
             j0 = j
-        if k == p.outer_per_level:
+        if k == p.outer_per_level or converged:
             break
         rows = d.slices(len(fit.state.T_bo))
         J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
         prior = _prior(lay, p, fit.radii, len(d.s))
         delta, f0, f1, move = solve_step(d.s, J, rows, d.outer, sigma, beta, lay, p.step_sigmas * sigma, prior, total,
-                                   bounds=_bounds(fit, d, sigma, p, lay.n) if p.step_bounds else None)
+                                         bounds=_bounds(fit, d, sigma, p, lay.n) if p.step_bounds else None)
         if not f1 > f0:
             break
         fit.state = fit.apply(fit.state, delta)
@@ -208,8 +209,7 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
                              "n_events": int(len(d.s)), "elapsed_s": time.perf_counter() - t_start})
         if progress is not None:
             progress(None, f"sigma {sigma:.2f} px: objective {j:.4f}, offset {fit.state.offset_us:.0f} us")
-        if move < p.converged_move * sigma:            # converged at this width
-            break
+        converged = move < p.converged_move * sigma     # evaluated once more above, then the level ends
     if not j >= j0:                                     # the level made things worse: back to its start
         fit.state = state0
         total[:] = total0
@@ -291,37 +291,59 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
             progress(level / (len(sigmas) + 1), f"sigma {sigma:.2f} px")
         fine = level >= len(sigmas) - SKEW_LEVELS
         b = _level(fit, sigma, lay if fine else coarse, params, result, total, t_start, progress, cancel)
-        if b is None:
-            result.reason = "no events near the objects' edges"
+        if b is None:                                            # no events near the edges at this width: stop
             break
         beta = b
         totals.append(total.copy())
-    cov, _ = _covariance(fit, sigmas[-1], beta, lay, params, total) if beta is not None else (None, None)
-    # what the two finest widths still disagree on: a bias that shrinks with the kernel width (events on one side of
-    # textured edges) is an error the spread between windows cannot show; it is added in quadrature
-    shift = totals[-1] - totals[-2] if len(totals) >= 2 else np.zeros_like(total)
-    if cov is not None:
-        cov = cov + np.diag(shift ** 2)
-    if cov is not None and params.clock and params.skew == "auto":
-        sk = math.sqrt(cov[1, 1]) if np.isfinite(cov[1, 1]) else math.inf
-        if not (sk <= SKEW_MAX_STD_PPM or abs(total[1]) > SKEW_SIGMAS * sk):
-            fit.state.skew_ppm = float(clock0.skew_ppm)          # not pinned: the start's skew, finest level again
-            total[1] = 0.0
-            lay = _layout(len(names), params, names, False, result.held)
-            _level(fit, sigmas[-1], lay, params, result, total, t_start, progress, cancel)
-            cov, _ = _covariance(fit, sigmas[-1], beta, lay, params, total)
-            if cov is not None:
-                cov = cov + np.diag(shift ** 2)
-            result.skew_std_ppm = sk
-        else:
-            result.skew_estimated = True
-    elif params.clock and params.skew == "fit":
-        result.skew_estimated = True
-    _finish(scene, fit, result, T_start, clock0, sigmas[-1], beta, cov, lay, total)
+    if beta is None:
+        result.reason = "no events near the objects' edges"
+    sigma_end = sigmas[max(len(totals) - 1, 0)]                  # the finest width that had events
+    cov = _final_covariance(fit, result, params, names, sigma_end, beta, lay, total, totals, clock0, t_start,
+                            progress, cancel)
+    _finish(scene, fit, result, T_start, clock0, sigma_end, beta, cov, cov_layout(result, params, names), total)
     result.runtime_s = time.perf_counter() - t_start
     if progress is not None:
         progress(1.0, "done" if result.accepted else result.reason)
     return result
+
+
+def cov_layout(result: JointResult, params: JointParams, names) -> Layout:
+    """The layout the final covariance is in: the skew free only when it was kept."""
+    return _layout(len(names), params, names, params.clock and result.skew_estimated, result.held)
+
+
+def _final_covariance(fit: _Fit, result: JointResult, params: JointParams, names, sigma, beta, lay: Layout, total,
+                      totals, clock0, t_start, progress, cancel):
+    """Standard errors at the end (:func:`_covariance` plus the two finest widths' disagreement in quadrature: a
+    bias that shrinks with the kernel width, events on one side of textured edges, is an error the spread between
+    windows cannot show), and the skew decision: kept when pinned (:data:`SKEW_MAX_STD_PPM`) or significant
+    (:data:`SKEW_SIGMAS`), else the start's skew and the finest width solved again without it."""
+    if beta is None:
+        return None
+    shift = totals[-1] - totals[-2] if len(totals) >= 2 else np.zeros_like(total)
+
+    def cov_at(layout):
+        cov, _ = _covariance(fit, sigma, beta, layout, params, total)
+        return None if cov is None else cov + np.diag(shift ** 2)
+
+    cov = cov_at(lay)
+    if not (params.clock and params.skew in ("auto", "fit")):
+        return cov
+    if params.skew == "fit" or cov is None:
+        result.skew_estimated = params.skew == "fit"
+        return cov
+    sk = math.sqrt(cov[1, 1]) if np.isfinite(cov[1, 1]) else math.inf
+    if sk <= SKEW_MAX_STD_PPM or abs(total[1]) > SKEW_SIGMAS * sk:
+        result.skew_estimated = True
+        return cov
+    fit.state = fit.state.copy()                                 # not pinned: the start's skew, finest width again
+    fit.state.skew_ppm = float(clock0.skew_ppm)
+    fit.contours = None
+    total[1] = 0.0
+    lay = _layout(len(names), params, names, False, result.held)
+    _level(fit, sigma, lay, params, result, total, t_start, progress, cancel)
+    result.skew_std_ppm = sk
+    return cov_at(lay)
 
 
 def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta, cov, lay: Layout, total):
@@ -343,17 +365,20 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
         result.reason = "the fit did not improve the objective; start kept"
         return
     result.accepted = True
+    result.reason = ""
     sd = np.sqrt(np.where(np.isfinite(np.diag(cov)), np.diag(cov), np.inf)) if cov is not None else np.full(lay.n, np.inf)
-    if lay.free[0]:
+    if lay.free[0] and np.isfinite(sd[0]):
         result.offset_us = int(round(end.offset_us))
         result.offset_std_us = float(sd[0])
         result.skew_ppm = float(end.skew_ppm)
         if lay.free[1]:
             result.skew_std_ppm = float(sd[1])
+    elif lay.free[0]:                                   # the edges do not pin the clock: the start's is kept
+        result.offset_std_us = math.inf
+        result.skew_estimated = False
     if lay.free[2:8].any():
         result.hand_eye_dT_cam = scene.corrections.hand_eye_delta @ end.H
-        ang, moved = _pose_change(end.H, np.zeros(3))
-        result.hand_eye_dR_deg, result.hand_eye_dt_mm = ang, float(np.linalg.norm(end.H[:3, 3]) * 1e3)
+        result.hand_eye_dR_deg, result.hand_eye_dt_mm = _pose_change(end.H, np.zeros(3))     # deg, mm of the origin
         result.hand_eye_std_mm = float(np.sqrt(np.sum(sd[2:5] ** 2)))
         result.hand_eye_std_deg = float(np.sqrt(np.sum(sd[5:8] ** 2)) * math.degrees(1e-3 / HAND_EYE_RADIUS_M))
     for i, name in enumerate(fit.names):
@@ -364,7 +389,7 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
             continue
         T_man = scene.manifest.object(name).T_base_obj
         c0 = T_start[i][:3, :3] @ fit.setup.edges[i].centre + T_start[i][:3, 3]
-        ang, moved = _pose_change(end.T_bo[i] @ inv_T(T_start[i]), c0)
+        ang, moved = _pose_change(end.T_bo[i] @ inv_T(T_start[i]), c0)      # deg, displacement of the centre mm
         s = sd[8 + 6 * i: 14 + 6 * i]
         result.objects[name] = ObjectFit(
             dT_base=end.T_bo[i] @ inv_T(T_man), dt_mm=moved, dR_deg=ang, std_mm=float(np.sqrt(np.sum(s[:3] ** 2))),

@@ -9,7 +9,7 @@ import numpy as np
 
 from evpose.core.align.refine_result import RefineParams
 
-__all__ = ["JOINT_SIGMAS_PX", "JointParams", "JointResult", "ObjectFit"]
+__all__ = ["JOINT_SIGMAS_PX", "JointParams", "JointResult", "ObjectFit", "json_number"]
 
 #: Coarse-to-fine kernel widths of the joint fit (px at half DAVIS346 resolution, scaled by fx / 146).
 JOINT_SIGMAS_PX = (1.5, 0.8, 0.45, 0.25, 0.14, 0.08)
@@ -73,8 +73,12 @@ class ObjectFit:
                 "dR_deg": float(self.dR_deg), "dt_std_mm": _num(self.std_mm), "dR_std_deg": _num(self.std_deg)}
 
 
-def _num(x):
+def json_number(x):
+    """``x`` as a JSON number, None when missing or not finite (JSON has no inf / NaN)."""
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+_num = json_number
 
 
 @dataclass

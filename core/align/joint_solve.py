@@ -131,11 +131,7 @@ def solve_step(s0: np.ndarray, J: np.ndarray, rows: list, outer: np.ndarray, sig
             cand = delta + step
             if bounds is not None:                          # every parameter within its bound (projected step)
                 cand = np.clip(cand, -bounds, bounds)
-            s_c = lin(cand)
-            move = float(np.sqrt(np.mean((s_c - s0) ** 2)))
-            if move > max_move_px:                          # trust region on the predicted edge motion
-                cand = delta + step * (max_move_px / move) * 0.999
-                s_c = lin(cand)
+            cand, s_c = _within_trust_region(delta, cand, lin, s0, max_move_px)
             f_c = objective(cand, s_c)
             if f_c > f:
                 gain = f_c - f
@@ -147,6 +143,24 @@ def solve_step(s0: np.ndarray, J: np.ndarray, rows: list, outer: np.ndarray, sig
         if not improved or gain < 1e-7 * abs(f):
             break
     return delta, f0, f, float(np.sqrt(np.mean((s - s0) ** 2))) if len(s0) else 0.0
+
+
+def _within_trust_region(delta: np.ndarray, cand: np.ndarray, lin, s0: np.ndarray, max_move_px: float):
+    """``delta + t (cand - delta)`` with the largest ``t`` in [0, 1] whose RMS edge motion ``|lin(.) - s0|`` is at
+    most ``max_move_px`` (``delta`` itself is within it), and its distances. The motion is a convex function of ``t``
+    (``lin`` is affine), so bisection finds ``t``; both ends lie within the parameter bounds, so does the result."""
+    s_c = lin(cand)
+    if not len(s0) or float(np.sqrt(np.mean((s_c - s0) ** 2))) <= max_move_px:
+        return cand, s_c
+    s_d = lin(delta)
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        t = 0.5 * (lo + hi)
+        if float(np.sqrt(np.mean((s_d + t * (s_c - s_d) - s0) ** 2))) <= max_move_px:
+            lo = t
+        else:
+            hi = t
+    return delta + lo * (cand - delta), s_d + lo * (s_c - s_d)
 
 
 def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: np.ndarray, sigma: float,

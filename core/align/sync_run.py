@@ -118,8 +118,7 @@ def final_estimate(rate, edges) -> dict:
     """The top level of the sync document: the edge stage's clock when it was accepted, else the rate's."""
     import math
 
-    def num(x):
-        return None if x is None or not math.isfinite(x) else float(x)
+    from evpose.core.align.joint_result import json_number as num
 
     d = {"method": "rate", "offset_us": rate.offset_us, "skew_ppm": num(rate.skew_ppm),
          "offset_std_us": num(rate.offset_std_us) if rate.offset_std_us is not None else None,

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from evpose.core.data.atomic import write_atomic
 from evpose.core.errors import InputError
+from evpose.core.export.bop import dump_list
 from evpose.core.export.bop_conventions import TARGETS_BOP19, TARGETS_BOP24
 
 __all__ = ["BopAssemblyError", "assemble_bop", "scene_split", "BOP_DIR", "NAMES_FILE"]
@@ -108,8 +109,7 @@ def assemble_bop(out_dir, names: list[str], done: list[str]) -> Path:
         _link(out_dir / first / "camera.json", bop / "camera.json")
         files += ["camera.json", "models/models_info.json"]
         for fname, lst in targets.items():
-            write_atomic(bop / fname, ("[\n" + ",\n".join(f"  {json.dumps(e)}" for e in lst) + "\n]\n"
-                                       if lst else "[]\n").encode())
+            write_atomic(bop / fname, dump_list(lst).encode())
             files.append(fname)
     doc = {"scenes": {f"{k:06d}": n for k, n in enumerate(names) if n in done}, "split": split,
            "missing": [n for n in names if n not in done], "files": sorted(files)}

@@ -51,7 +51,9 @@ def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, c
     if F.ndim != 2 or (len(F) and F.shape[1] != 3):
         raise ValueError(f"ply_bytes: expected (F, 3) triangles, got shape {F.shape}")
     head = ["ply", "format binary_little_endian 1.0"]
-    head += [f"comment {line}" for line in comment.splitlines() if line]
+    # comments are ASCII header lines: other characters of an object's name are escaped (\xe9), controls dropped
+    safe = "".join(c for c in comment if c == "\n" or c.isprintable()).encode("ascii", "backslashreplace").decode()
+    head += [f"comment {line}" for line in safe.splitlines() if line]
     head += [f"element vertex {len(V)}"] + [f"property float {a}" for a in ("x", "y", "z", "nx", "ny", "nz")]
     head += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
     vert = np.empty(len(V), dtype=[("p", "<f4", 6)])

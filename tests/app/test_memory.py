@@ -56,10 +56,10 @@ def test_release_memory_drops_the_cached_module_sources():
 def test_idle_releaser_waits_for_a_quiet_period(qtbot, monkeypatch):
     calls = []
     monkeypatch.setattr(memory, "release_memory", lambda: calls.append(1) or True)
-    r = memory.IdleReleaser(idle_ms=150)
-    for _ in range(6):                           # activity every 60 ms: never quiet for 150 ms
+    r = memory.IdleReleaser(idle_ms=1000)
+    for _ in range(6):                           # activity every 100 ms: never quiet for 1 s
         r.poke()
-        qtbot.wait(60)
+        qtbot.wait(100)
     assert calls == []
     qtbot.waitUntil(lambda: calls == [1], timeout=2000)
     qtbot.wait(300)
@@ -69,7 +69,7 @@ def test_idle_releaser_waits_for_a_quiet_period(qtbot, monkeypatch):
 def test_main_window_releases_memory_when_the_user_pauses(window, scene_copy, qtbot, monkeypatch):
     calls = []
     monkeypatch.setattr(memory, "release_memory", lambda: calls.append(1) or True)
-    window.memory.timer.setInterval(100)
+    window.memory.timer.setInterval(1000)
     window.controller.open_scene(scene_copy)
     qtbot.waitUntil(lambda: window.frame_up_to_date() and len(calls) == 1, timeout=20_000)   # after the first frame
     t0, t1 = window.session.time_range
@@ -77,7 +77,7 @@ def test_main_window_releases_memory_when_the_user_pauses(window, scene_copy, qt
         window.session.set_time(t0 + k * (t1 - t0) // 4)
         qtbot.wait(30)
     assert len(calls) == 1
-    qtbot.waitUntil(lambda: len(calls) == 2, timeout=5000)
+    qtbot.waitUntil(lambda: len(calls) == 2, timeout=10_000)
 
 
 _STARTUP_CHILD = r"""

@@ -418,3 +418,13 @@ def test_resume_after_cancel_identical(tiny_scene_dir, tmp_path):
     for p in ref.rglob("*"):
         if p.is_file() and ".evpose" not in p.parts and p.name != "export_manifest.json":
             assert p.read_bytes() == (out / p.relative_to(ref)).read_bytes(), p
+
+
+def test_model_ply_header_survives_any_object_name():
+    """Object names may hold any character; the PLY header is ASCII: the name is escaped, never an error."""
+    from evpose.core.export.bop_models import ply_bytes
+
+    data = ply_bytes(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.tile([0.0, 0.0, 1.0], (3, 1)),
+                     comment="evpose object tasse_café\x07 (mm)")
+    head = data.split(b"end_header\n")[0].decode("ascii")
+    assert "comment evpose object tasse_caf\\xe9 (mm)" in head and "\x07" not in head

@@ -199,7 +199,7 @@ def test_hand_eye_error_is_recovered(mounted):
 def test_refine_joint_apply_is_one_undo_step(wrong, tmp_path):
     folder = tmp_path / "scene"
     shutil.copytree(wrong, folder)
-    rc, out = _cli(["refine", str(folder), "--joint", "--json", "--apply", "--windows", "12", "-q"])
+    rc, out = _cli(["refine", str(folder), "--joint", "--json", "--apply", "--windows", "12"])   # with the bar
     assert rc == 0
     doc = json.loads(out)
     for key in ("offset_us", "skew_ppm", "offset_std_us", "objects", "held", "hand_eye", "accepted", "applied"):
@@ -229,7 +229,7 @@ def test_sync_edges_json_puts_the_final_estimate_on_top(wrong, tmp_path):
     ``--apply`` stores that clock (not the rate's) and no pose."""
     folder = tmp_path / "scene"
     shutil.copytree(wrong, folder)
-    rc, out = _cli(["sync", str(folder), "--json", "--edges", "--apply", "--windows", "12", "-q"])
+    rc, out = _cli(["sync", str(folder), "--json", "--edges", "--apply", "--windows", "12"])     # with the bar
     assert rc == 0
     data = json.loads(out)
     rate, edges = data["stages"]["rate"], data["stages"]["edges"]
@@ -245,6 +245,9 @@ def test_sync_edges_json_puts_the_final_estimate_on_top(wrong, tmp_path):
     assert data["applied"]
     with Scene.open(folder) as scene:
         assert scene.clock.offset_us == data["offset_us"]
+        if data["skew_ppm"] is not None:                                # the skew reported is the skew saved
+            assert scene.clock.skew_ppm == pytest.approx(data["skew_ppm"])
+        assert scene.corrections.skew_ppm == pytest.approx(data["correction"]["skew_ppm"])
         assert scene.corrections.object_deltas == {}                  # sync stores the clock only
     rc, text = _cli(["sync", str(folder), "--edges", "--windows", "8", "-q"])
     assert rc == 0 and "clock and poses fitted together" in text
