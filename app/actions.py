@@ -53,6 +53,16 @@ SHORTCUTS: tuple[Shortcut, ...] = (
     Shortcut("toggle_box", ("B",), "3D boxes on/off", "View"),
     Shortcut("toggle_axes", ("X",), "object axes on/off", "View"),
     Shortcut("reset_zoom", ("0",), "fit the frame", "View"),
+    Shortcut("rep_polarity", ("1",), "events: polarity (ON red, OFF blue)", "View"),
+    Shortcut("rep_spike", ("2",), "events: spike (any event)", "View"),
+    Shortcut("rep_three_channel", ("3",), "events: E-POSE 3-channel", "View"),
+    Shortcut("rep_time_surface", ("4",), "events: time surface", "View"),
+    Shortcut("rep_counts", ("5",), "events: counts", "View"),
+    Shortcut("rep_voxel", ("6",), "events: voxel grid", "View"),
+    Shortcut("window_shorter", ("-",), "halve the window (ms or events)", "View"),
+    Shortcut("window_longer", ("=", "+"), "double the window", "View"),
+    Shortcut("selected_only", ("H",), "overlays of the selected object only", "View"),
+    Shortcut("outline_only", ("Shift+C",), "outlines only (no fill, boxes, axes)", "View"),
     Shortcut("help", ("F1",), "this help", "View"),
     # document
     Shortcut("open", ("Ctrl+O",), "open a scene", "File"),
@@ -69,9 +79,27 @@ NUDGES = {f"{k}{a}_{s}": ("translate" if k == "t" else "rotate", "xyz".index(a),
           for k in "tr" for a in "xyz" for s in ("minus", "plus")}
 
 
+def sentence_case(text: str) -> str:
+    """A menu entry's text from a table row: the first letter capitalised, the rest as written (menus use sentence
+    case throughout: "Go to the next unreviewed window", "Save corrections", "Open recent")."""
+    return text[:1].upper() + text[1:]
+
+
 def help_sections() -> list[tuple[str, list[tuple[str, str]]]]:
     """Rows for the help overlay, grouped by section in table order."""
     sections: dict[str, list[tuple[str, str]]] = {}
     for s in SHORTCUTS:
         sections.setdefault(s.section, []).append((" / ".join(s.keys), s.text))
     return list(sections.items())
+
+
+#: Representation -> the name of its shortcut row.
+REPRESENTATION_SHORTCUTS = {s.name[len("rep_"):]: s.name for s in SHORTCUTS if s.name.startswith("rep_")}
+
+
+def is_single_key(sequence: str) -> bool:
+    """A shortcut typed as text: one printable key, alone or with Shift (``"R"``, ``"Space"``, ``"["``,
+    ``"Shift+N"``), as opposed to ``"Ctrl+S"``, ``"F1"`` or the arrows. These must not fire while a button has
+    the keyboard focus or the user types in a field (:mod:`evpose.app.shortcut_guard`)."""
+    key = sequence[len("Shift+"):] if sequence.startswith("Shift+") and len(sequence) > len("Shift+") else sequence
+    return len(key) == 1 or key == "Space"

@@ -11,73 +11,18 @@ the field and both values and offers keeping ours or theirs), *Reload* (discard 
 """
 from __future__ import annotations
 
-import datetime
 import warnings
-from pathlib import Path
 
 from PySide6 import QtCore, QtWidgets
 
+from evpose.app.export_dialog import ExportDialog, export_done_box
+from evpose.app.restore_dialog import TITLE as RESTORE_TITLE
+from evpose.app.restore_dialog import restore_question
 from evpose.app.workers import Job, progress_dialog
 from evpose.core.document.corrections import CorrectionsError, CorrectionsWarning
 from evpose.core.document.corrections_merge import CorrectionsConflict
 from evpose.core.errors import InputError
 from evpose.core.session.model import Session
-
-
-class ExportDialog(QtWidgets.QDialog):
-    """Format, output folder and window options for ``evpose.core.export.export_scene``."""
-
-    def __init__(self, parent, scene_name: str, last_dir: str = ""):
-        super().__init__(parent)
-        self.setWindowTitle("Export corrected dataset")
-        form = QtWidgets.QFormLayout(self)
-        self.fmt = QtWidgets.QComboBox()
-        for key, text in (("epose", "E-POSE layout (per-window PNG/.mat/.txt)"), ("bop", "BOP (undistorted)"),
-                          ("h5", "HDF5 (one file, streaming)")):
-            self.fmt.addItem(text, key)
-        self.out = QtWidgets.QLineEdit(str(Path(last_dir or Path.home()) / f"{scene_name}_export"))
-        browse = QtWidgets.QPushButton("…")
-        browse.clicked.connect(self._browse)
-        row = QtWidgets.QHBoxLayout()
-        row.addWidget(self.out, 1)
-        row.addWidget(browse)
-        self.window_ms = QtWidgets.QDoubleSpinBox(suffix=" ms", decimals=1, minimum=0.1, maximum=10_000, value=10.0)
-        self.window_events = QtWidgets.QSpinBox(minimum=0, maximum=100_000_000, value=0, specialValueText="by time")
-        self.label_at = QtWidgets.QComboBox()
-        self.label_at.addItem("window centre", "center")
-        self.label_at.addItem("window end (E-POSE timing)", "end")
-        self.only_verified = QtWidgets.QCheckBox("only windows marked verified")
-        self.include_stale = QtWidgets.QCheckBox("also verified marks made before a later clock or pose change (stale)")
-        self.include_stale.setEnabled(False)
-        self.only_verified.toggled.connect(self.include_stale.setEnabled)
-        self.jobs = QtWidgets.QSpinBox(minimum=1, maximum=max(QtCore.QThread.idealThreadCount(), 1), value=1)
-        form.addRow("format", self.fmt)
-        form.addRow("output folder", row)
-        form.addRow("window length", self.window_ms)
-        form.addRow("or events per window", self.window_events)
-        form.addRow("label time", self.label_at)
-        form.addRow("", self.only_verified)
-        form.addRow("", self.include_stale)
-        form.addRow("processes", self.jobs)
-        buttons = QtWidgets.QDialogButtonBox(QtWidgets.QDialogButtonBox.Ok | QtWidgets.QDialogButtonBox.Cancel)
-        buttons.accepted.connect(self.accept)
-        buttons.rejected.connect(self.reject)
-        form.addRow(buttons)
-
-    def _browse(self) -> None:
-        d = QtWidgets.QFileDialog.getExistingDirectory(self, "Export folder", self.out.text())
-        if d:
-            self.out.setText(d)
-
-    def options(self) -> dict:
-        opts = {"fmt": self.fmt.currentData(), "out_dir": self.out.text().strip(), "label_at": self.label_at.currentData(),
-                "only_verified": self.only_verified.isChecked(), "jobs": self.jobs.value(),
-                "include_stale": self.only_verified.isChecked() and self.include_stale.isChecked()}
-        if self.window_events.value() > 0:
-            opts["window_events"] = self.window_events.value()
-        else:
-            opts["window_us"] = int(round(self.window_ms.value() * 1000))
-        return opts
 
 
 class Controller(QtCore.QObject):
@@ -91,6 +36,10 @@ class Controller(QtCore.QObject):
         self.open_warnings: list[str] = []
         self._deferred_signature = None   # an external change the user chose to decide "later"
         self._asking = False
+        #: the text of the last question asked under each title (also when answered unattended)
+        self.questions: dict[str, str] = {}
+        #: the message shown when the last export was done (its "Open folder" button: ``open_button``)
+        self.done_box: QtWidgets.QMessageBox | None = None
 
     # ------------------------------------------------------------------ helpers
     def error(self, title: str, message: str, details: str = "") -> None:
@@ -104,6 +53,7 @@ class Controller(QtCore.QObject):
         self.window.statusBar().showMessage(f"{title}: {message}", 10_000)
 
     def _ask(self, title: str, text: str, buttons, default):
+        self.questions[title] = text
         if not getattr(self.window, "modal_dialogs", True):
             return self.window.auto_answer.get(title, default)
         return QtWidgets.QMessageBox.question(self.window, title, text, buttons, default)
@@ -162,11 +112,10 @@ class Controller(QtCore.QObject):
             self.window.statusBar().showMessage(session.journal_problem, 15_000)
         if journal is None:
             return
-        when = datetime.datetime.fromtimestamp(session.journal_path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
-        answer = self._ask("Restore unsaved corrections?",
-                           f"Corrections autosaved on {when} were never saved (the app may have crashed).\n"
-                           "Restore them? (You can undo the restore.)",
-                           QtWidgets.QMessageBox.Yes | QtWidgets.QMessageBox.No, QtWidgets.QMessageBox.Yes)
+        text = restore_question(session.scene.corrections, journal, session.journal_path.stat().st_mtime,
+                                str(session.journal_path))
+        answer = self._ask(RESTORE_TITLE, text, QtWidgets.QMessageBox.Yes | QtWidgets.QMessageBox.No,
+                           QtWidgets.QMessageBox.Yes)
         if answer == QtWidgets.QMessageBox.Yes:
             conflicts = session.restore_journal(journal)
             extra = ("; kept the autosaved value over the file's for " + ", ".join(c.field for c in conflicts)
@@ -288,14 +237,14 @@ class Controller(QtCore.QObject):
         s = self.window.session
         if s is None:
             return
-        dlg = ExportDialog(self.window, s.scene.name, self.window.settings.last_export_dir())
+        dlg = ExportDialog(self.window, s.scene, self.window.settings)
         if dlg.exec() != QtWidgets.QDialog.Accepted:
             return
         opts = dlg.options()
         if not opts["out_dir"]:
             self.error("Export", "choose an output folder")
             return
-        self.window.settings.set_last_export_dir(str(Path(opts["out_dir"]).parent))
+        dlg.remember()
         self.start_export(**opts)
 
     def start_export(self, **opts) -> Job:
@@ -312,6 +261,7 @@ class Controller(QtCore.QObject):
             self.jobs.remove(job)
             self.window.statusBar().showMessage(export_done_text(summary), 30_000)
             self.window.last_export = summary
+            self.done_box = export_done_box(self.window, summary, export_done_text(summary))
 
         def failed(message, details):
             dlg.close()

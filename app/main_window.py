@@ -8,20 +8,27 @@ from pathlib import Path
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.app import actions as A
+from evpose.app import frame_actions
+from evpose.app import layout as L
 from evpose.app.align import AlignController
 from evpose.app.controller import Controller
+from evpose.app.dialog_place import DialogPlacer
 from evpose.app.disk_watch import CorrectionsWatcher
 from evpose.app.memory import IdleReleaser
+from evpose.app.review_menu import fill_review_menu, review_actions
+from evpose.app.score_row import ScoreRowUpdater
 from evpose.app.settings import Settings
+from evpose.app.shortcut_guard import ShortcutGuard
 from evpose.app.undo_bridge import UndoBridge
 from evpose.app.workers import LatestWorker
 from evpose.core.data.event_cache import EventChunkCache
 from evpose.core.session.frames import EventFrame, FrameComputer, FrameData, SpaceTimeData
+from evpose.core.session.kymograph import KymographComputer, KymographData, KymographRequest
 from evpose.core.session.model import Session
 from evpose.core.session.view_state import REPRESENTATION_NAMES
 from evpose.core.signals import Change
 from evpose.widgets.correction_panel import CorrectionPanel
-from evpose.widgets.frame_view import FrameView
+from evpose.widgets.frame_view import DISPLAY_ONLY_FIELDS, FrameView
 from evpose.widgets.help_overlay import HelpOverlay
 from evpose.widgets.object_list import ObjectList
 from evpose.widgets.review_panel import ReviewPanel
@@ -46,6 +53,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.session: Session | None = None
         self.controller = Controller(self)
         self.align = AlignController(self)
+        self.score_row = ScoreRowUpdater(self)   # the timeline's scores: stale at once, recomputed in the background
         self._spacetime_stale = False
         self.auto_answer: dict = {}
         self.last_error: str | None = None
@@ -59,7 +67,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.undo_bridge: UndoBridge | None = None
         self.disk_watcher: CorrectionsWatcher | None = None
         self.setWindowTitle("evpose[*]")
-        self.resize(1500, 950)
+        L.fit_to_screen(self, "first")     # most of the screen, never larger (app/layout.py)
         self.setAcceptDrops(True)
         self.setDockNestingEnabled(True)
 
@@ -82,10 +90,16 @@ class MainWindow(QtWidgets.QMainWindow):
                                              idle=spacetime_fc.prefetch_spacetime)
         self.spacetime_worker.done.connect(self._spacetime_ready)
         self.spacetime_worker.failed.connect(self._worker_failed)
+        kymograph_kc = KymographComputer(self.event_cache)    # the x-t slice; label maps cached by time and pose
+        self.kymograph_worker = LatestWorker(kymograph_kc.stages, "kymograph-worker")
+        self.kymograph_worker.done.connect(self._kymograph_ready)
+        self.kymograph_worker.failed.connect(self._worker_failed)
+        self._kymograph_serial = 0          # the last submitted request (older results are dropped)
         #: gives freed heap pages and cached module sources back once the user pauses (app/memory.py)
         self.memory = IdleReleaser(self)
         self._spacetime_timer = QtCore.QTimer(self, singleShot=True, interval=SPACETIME_DEBOUNCE_MS)
         self._spacetime_timer.timeout.connect(self.request_spacetime)
+        self._spacetime_timer.timeout.connect(self.request_kymograph)
         self._autosave = QtCore.QTimer(self, interval=AUTOSAVE_MS)
         self._autosave.timeout.connect(lambda: self.session and self.session.write_journal())
         self._autosave.start()
@@ -98,14 +112,19 @@ class MainWindow(QtWidgets.QMainWindow):
         self._build_menus()
         self.help = HelpOverlay(self)
         self.help.set_shortcuts(A.help_sections())
+        self.dialog_placer = DialogPlacer(self)    # progress and result boxes beside the frame view, not over it
+        # typed keys on a focused button / box / slider never reach the single-key shortcuts (issue 16)
+        self.shortcut_guard = ShortcutGuard(self, lambda: frame_actions.focus_frame(self),
+                                            lambda t: self.statusBar().showMessage(t, 6000))
         self.statusBar().showMessage("ready")
-        self.settings.restore_window(self)
+        if self.settings.restore_geometry(self):
+            L.fit_to_screen(self)
 
     # ------------------------------------------------------------------ actions and menus
     def _build_actions(self) -> None:
         self.actions_by_name: dict[str, QtGui.QAction] = {}
         for sc in A.SHORTCUTS:
-            act = QtGui.QAction(sc.text, self)
+            act = QtGui.QAction(A.sentence_case(sc.text), self)
             act.setShortcuts([QtGui.QKeySequence(k) for k in sc.keys])
             act.setShortcutContext(QtCore.Qt.WindowShortcut)
             act.setToolTip(f"{sc.text} ({' / '.join(sc.keys)})")
@@ -147,9 +166,10 @@ class MainWindow(QtWidgets.QMainWindow):
             a[name].setCheckable(True)
             a[name].toggled.connect(lambda on, k=kind: self.session and self.session.set_overlay(k, on))
         a["reset_zoom"].triggered.connect(lambda: self.frame_view and self.frame_view.reset_zoom())
-        for name, text, slot in (("auto_sync", "Automatic clock &sync…", self._auto_sync),
-                                 ("edge_sync", "Refine clock offset from &edges…", lambda: self.align.refine_clock()),
-                                 ("refine_selected", "&Refine selected object from events…", lambda: self._refine("")),
+        frame_actions.connect(self)      # window length, selected object only, outlines only
+        for name, text, slot in (("auto_sync", "&Auto: clock and poses (event rate, then edges)…", self._auto_sync),
+                                 ("edge_sync", "Clock and poses from &edges…", lambda: self.align.refine_clock()),
+                                 ("refine_selected", "&Refine selected object from edges…", lambda: self._refine("")),
                                  ("score_all", "S&core all windows (timeline)", self.align.score_all)):
             act = QtGui.QAction(text, self)
             act.triggered.connect(slot)
@@ -158,10 +178,13 @@ class MainWindow(QtWidgets.QMainWindow):
         self.open_dataset_action.triggered.connect(lambda: _dataset_ui().open_dataset_dialog(self))
         self.back_to_dataset_action = QtGui.QAction("&Back to dataset", self)
         self.back_to_dataset_action.triggered.connect(lambda: _dataset_ui().show_dataset(self))
+        self.actions_by_name.update(review_actions(self))    # range start, remove mark (app/review_menu.py)
         self.representation_group = QtGui.QActionGroup(self)
         self.representation_actions = {}
         for name in REPRESENTATION_NAMES:
-            act = QtGui.QAction(REPRESENTATION_LABELS[name], self, checkable=True)
+            act = self.actions_by_name[A.REPRESENTATION_SHORTCUTS[name]]      # keys 1-6
+            act.setText(REPRESENTATION_LABELS[name])
+            act.setCheckable(True)
             act.triggered.connect(lambda _=False, n=name: self.session and self.session.set_representation(n))
             self.representation_group.addAction(act)
             self.representation_actions[name] = act
@@ -191,15 +214,15 @@ class MainWindow(QtWidgets.QMainWindow):
             rep.addAction(act)
         for name in OVERLAY_ACTIONS:
             m.addAction(a[name])
+        for name in frame_actions.MENU:
+            m.addAction(a[name])
         m.addAction(a["reset_zoom"])
         self.docks_menu = m.addMenu("&Panels")
         m = self.menuBar().addMenu("&Navigate")
         for name in ("step_back", "step_forward", "step_back_10", "step_forward_10", "go_start", "go_end", "play",
                      "next_unreviewed", "next_flagged"):
             m.addAction(a[name])
-        m = self.menuBar().addMenu("&Review")
-        for name in ("mark_verified", "mark_rejected", "mark_flagged"):
-            m.addAction(a[name])
+        fill_review_menu(self.menuBar().addMenu("&Review"), a)
         m = self.menuBar().addMenu("&Tools")
         for name in ("auto_sync", "edge_sync", "refine_selected", "score_all"):
             m.addAction(a[name])
@@ -227,6 +250,7 @@ class MainWindow(QtWidgets.QMainWindow):
     reviews: ReviewPanel | None = None
     timeline = None
     spacetime = None
+    kymograph = None
     objects: ObjectList | None = None
 
     def set_session(self, session: Session) -> None:
@@ -237,7 +261,7 @@ class MainWindow(QtWidgets.QMainWindow):
         from evpose.widgets.timeline import Timeline
 
         self.frame_view = FrameView(session)
-        self.frame_view.hoverText.connect(lambda t: t and self.statusBar().showMessage(t, 2000))
+        frame_actions.attach(self, self.frame_view)      # key hints; hover text in the status bar
         self.setCentralWidget(self.frame_view)
         self.panel = CorrectionPanel(session)
         self.objects = ObjectList(session)
@@ -250,25 +274,29 @@ class MainWindow(QtWidgets.QMainWindow):
         right = QtWidgets.QWidget()
         rl = QtWidgets.QVBoxLayout(right)
         rl.setContentsMargins(0, 0, 0, 0)
-        self.objects.setMinimumHeight(60 + 26 * min(len(session.object_names), 6))
+        self.objects.fit_rows(6)
         rl.addWidget(self.objects, 0)
         rl.addWidget(self.panel, 1)
-        self._add_dock("Objects and corrections", right, QtCore.Qt.RightDockWidgetArea, "dock_corrections")
-        self._add_dock("Review", self.reviews, QtCore.Qt.LeftDockWidgetArea, "dock_review")
-        self._add_dock("Space-time (x, y, t)", self.spacetime, QtCore.Qt.LeftDockWidgetArea, "dock_spacetime")
+        # side panels scroll inside their docks: the window fits a small screen and never grows for a text
+        self._add_dock("Objects and corrections", L.scrolled(right), QtCore.Qt.RightDockWidgetArea, "dock_corrections")
+        self._add_dock("Review", L.scrolled(self.reviews), QtCore.Qt.LeftDockWidgetArea, "dock_review")
+        self._add_dock("Space-time (x, y, t)", L.scrolled(self.spacetime), QtCore.Qt.LeftDockWidgetArea,
+                       "dock_spacetime")
         # review marks under the space-time view: the right column keeps its height for corrections
         self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
         self._add_dock("Timeline", self.timeline, QtCore.Qt.BottomDockWidgetArea, "dock_timeline")
+        L.bare_title(self._docks[3])    # no close button beside "Fit" (View ▸ Panels shows and hides it)
         self._docks[2].visibilityChanged.connect(self._spacetime_visibility)
+        self._add_kymograph_dock(session)
         # the timeline spans the full width under the side docks
         self.setCorner(QtCore.Qt.BottomLeftCorner, QtCore.Qt.BottomDockWidgetArea)
         self.setCorner(QtCore.Qt.BottomRightCorner, QtCore.Qt.BottomDockWidgetArea)
-        self.timeline.setMinimumHeight(150)
-        if not self.settings.restore_window(self):
+        if not self.settings.restore_state(self, L.LAYOUT_VERSION):
             self._default_dock_sizes()
             QtCore.QTimer.singleShot(0, self._default_dock_sizes)   # again once laid out
         self.undo_bridge = UndoBridge(session.history, self.actions_by_name["undo"], self.actions_by_name["redo"], self)
         self._session_connection = session.changed.connect(self._on_session)
+        self.score_row.attach(session)
         # another program saving corrections.json (CLI --apply, a second app) is noticed and offered
         self.disk_watcher = CorrectionsWatcher(session.scene.corrections_path, self)
         self.disk_watcher.changed.connect(self.controller.on_disk_change)
@@ -278,15 +306,18 @@ class MainWindow(QtWidgets.QMainWindow):
         self.undo_bridge.sync()
         self.request_frame()
         self.request_spacetime()
+        self.request_kymograph()
 
     def _default_dock_sizes(self) -> None:
         if len(self._docks) < 4:
             return
-        self.resizeDocks([self._docks[2], self._docks[0]], [520, 400], QtCore.Qt.Horizontal)
-        self.resizeDocks([self._docks[3], self._docks[1]], [240, 150], QtCore.Qt.Vertical)
+        d = self._docks
+        L.default_dock_sizes(self, spacetime=d[2], review=d[1], corrections=d[0], timeline=d[3])
 
     def ensure_timeline_height(self, px: int) -> None:
+        """Give the timeline ``px`` of height (e.g. room for the score row), at most a third of the window's."""
         dock = self._docks[3] if len(self._docks) > 3 else None
+        px = min(px, max(self.height() // 3, dock.minimumSizeHint().height() if dock is not None else 0))
         if dock is not None and not dock.isFloating() and dock.height() < px:
             self.resizeDocks([dock], [px], QtCore.Qt.Vertical)
 
@@ -301,8 +332,9 @@ class MainWindow(QtWidgets.QMainWindow):
     def _teardown_session(self) -> None:
         if self.session is None:
             return
-        self.settings.save_window(self)
+        self.settings.save_window(self, L.LAYOUT_VERSION)
         self.align.cancel_all()
+        self.score_row.detach()
         self._spacetime_timer.stop()
         if self._session_connection is not None:
             self._session_connection.disconnect()
@@ -318,6 +350,10 @@ class MainWindow(QtWidgets.QMainWindow):
             self.timeline.stop()
         if self.spacetime is not None:
             self.spacetime.shutdown()
+        if self.kymograph is not None:
+            self.kymograph.shutdown()
+            self.kymograph = None
+        self._kymograph_serial = 1 << 62    # late kymographs of this session are dropped
         # late worker results for the old session must find no views (they are being deleted)
         self.frame_view = self.panel = self.reviews = self.timeline = self.spacetime = self.objects = None
         self.frame = None
@@ -329,6 +365,7 @@ class MainWindow(QtWidgets.QMainWindow):
         for dock in self._docks:
             self.docks_menu.removeAction(dock.toggleViewAction())
             self.removeDockWidget(dock)
+            dock.setObjectName("")      # until deleted, restoreState of the next scene would bring it back
             dock.deleteLater()
         self._docks.clear()
         self.session.close()
@@ -343,9 +380,13 @@ class MainWindow(QtWidgets.QMainWindow):
             act.setChecked(kind in v.overlays)
             act.blockSignals(False)
         self.representation_actions[v.representation].setChecked(True)
+        frame_actions.sync(self, v)
 
     def _on_session(self, change: Change) -> None:
-        self.request_frame()                 # every kind of session change shows in the frame
+        self.score_row.on_change(change)     # a clock or pose change: scores stale at once, then recomputed
+        if not (change.kind == "view" and change.fields and change.fields <= DISPLAY_ONLY_FIELDS):
+            self.request_frame()             # every kind of session change shows in the frame (display options:
+                                             # the frame view redraws what it has, nothing to compute)
         self.memory.poke()
         self._spacetime_timer.start()
         if change.kind == "view":
@@ -395,6 +436,36 @@ class MainWindow(QtWidgets.QMainWindow):
         self.frame_view.set_overlays(data)
         if self.objects is not None:
             self.objects.set_scores(data.scores)
+
+    def _add_kymograph_dock(self, session: Session) -> None:
+        """The kymograph (x-t slice along a line drawn across an object edge): a tab beside the space-time view,
+        closed until asked for (the space-time view's "Kymograph" button, View > Panels); computed while in sight
+        (:meth:`request_kymograph`)."""
+        from evpose.widgets.kymograph_view import KymographView
+
+        self.kymograph = KymographView(session)
+        self.kymograph.lineChanged.connect(self.request_kymograph)
+        self._add_dock("Kymograph (x–t slice)", L.scrolled(self.kymograph), QtCore.Qt.LeftDockWidgetArea,
+                       "dock_kymograph")
+        dock = self._docks[-1]
+        self.tabifyDockWidget(self._docks[2], dock)
+        dock.hide()
+        dock.visibilityChanged.connect(lambda on: on and QtCore.QTimer.singleShot(0, self.request_kymograph))
+        self.spacetime.kymographRequested.connect(lambda: (dock.show(), dock.raise_()))
+
+    def request_kymograph(self) -> None:
+        """Recompute the kymograph for its line and the session's state, unless it is out of sight (a tab behind
+        another, a closed dock): it is computed when shown."""
+        view = self.kymograph
+        if self.session is None or view is None or view.visibleRegion().isEmpty():
+            return
+        req = KymographRequest(self.session.request(), view.line, self.session.view.kymograph_span_us)
+        self._kymograph_serial = req.serial
+        self.kymograph_worker.submit(req)
+
+    def _kymograph_ready(self, data: KymographData, serial: int) -> None:
+        if self.kymograph is not None and serial >= self._kymograph_serial:
+            self.kymograph.set_data(data)
 
     def _spacetime_ready(self, data: SpaceTimeData, serial: int) -> None:
         if self.spacetime is None or serial <= self._shown_serial["spacetime"]:
@@ -489,10 +560,11 @@ class MainWindow(QtWidgets.QMainWindow):
         for job in list(self.controller.jobs):
             job.cancel()
         self._teardown_session()
-        self.settings.save_window(self)
+        self.settings.save_window(self, L.LAYOUT_VERSION)
         self.events_worker.stop()
         self.frame_worker.stop()
         self.spacetime_worker.stop()
+        self.kymograph_worker.stop()
         if self.dataset_window is not None:
             self.dataset_window.close()
         event.accept()

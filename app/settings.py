@@ -1,6 +1,7 @@
-"""Persistent user settings (QSettings): recent scenes, window geometry and dock state."""
+"""Persistent user settings (QSettings): recent scenes, window geometry and dock state, the export options."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from PySide6 import QtCore
@@ -27,20 +28,29 @@ class Settings:
     def remove_recent(self, path) -> None:
         self.qs.setValue("recent_scenes", [r for r in self.recent_scenes() if r != str(path)])
 
-    def save_window(self, window) -> None:
+    def save_window(self, window, version: int = 0) -> None:
+        """Save the window's geometry and dock layout (``version``: of the layout, see :meth:`restore_state`)."""
         self.qs.setValue("window/geometry", window.saveGeometry())
-        self.qs.setValue("window/state", window.saveState())
+        self.qs.setValue("window/state", window.saveState(version))
 
-    def restore_window(self, window) -> bool:
-        """Restore geometry and dock layout; True if a saved dock layout was applied."""
+    def restore_geometry(self, window) -> bool:
+        """Restore the saved window geometry (the caller clamps it to the screen); True if there was one."""
         geo = self.qs.value("window/geometry")
-        if geo is not None:
-            window.restoreGeometry(geo)
+        return bool(geo is not None and window.restoreGeometry(geo))
+
+    def restore_state(self, window, version: int = 0) -> bool:
+        """Restore the saved dock layout if it was saved with the same ``version``; True if it was applied."""
         state = self.qs.value("window/state")
-        return bool(state is not None and window.restoreState(state))
+        return bool(state is not None and window.restoreState(state, version))
 
-    def last_export_dir(self) -> str:
-        return str(self.qs.value("export/last_dir", ""))
+    def export_options(self) -> dict:
+        """The export dialog's last format and options (empty: defaults)."""
+        value = self.qs.value("export/options", "")
+        try:
+            out = json.loads(value) if isinstance(value, str) and value else {}
+        except ValueError:
+            return {}
+        return out if isinstance(out, dict) else {}
 
-    def set_last_export_dir(self, path: str) -> None:
-        self.qs.setValue("export/last_dir", path)
+    def set_export_options(self, options: dict) -> None:
+        self.qs.setValue("export/options", json.dumps(options))

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
-from evpose.core.document.pose_edit import FRAMES, delta_components
+from evpose.core.errors import InputError
+from evpose.core.document.pose_edit import FRAMES, delta_components, pose_change
 from evpose.core.session.model import Session
 from evpose.core.signals import Change
 from evpose.widgets.binding import connect_view
@@ -32,6 +33,13 @@ def _spin(lo, hi, step, decimals=None, suffix=""):
     w.setKeyboardTracking(False)
     w.setAccelerated(True)
     return w
+
+
+def _two_lines(label: QtWidgets.QLabel) -> None:
+    """A readout wrapped on at most two lines of constant height, whose width follows the panel (not its text)."""
+    label.setWordWrap(True)
+    label.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Fixed)
+    label.setFixedHeight(2 * label.fontMetrics().lineSpacing() + 4)
 
 
 class _NudgeGrid(QtWidgets.QWidget):
@@ -103,13 +111,17 @@ class CorrectionPanel(QtWidgets.QWidget):
                                     "around the value when switched on")
         self._slider_anchor, self._slider_unit = 0, 100
         self.offset_total = QtWidgets.QLabel()
+        _two_lines(self.offset_total)     # the dock never moves when the numbers get longer
         self.skew_spin = _spin(-5000.0, 5000.0, 1.0, decimals=3, suffix=" ppm")
         self.skew_spin.setToolTip("Clock skew correction in parts per million (added to the prior)")
         self.auto_button = QtWidgets.QPushButton("Auto…")
-        self.auto_button.setToolTip("Estimate offset and skew from the event rate vs the robot speed")
-        self.edges_button = QtWidgets.QPushButton("Refine offset from edges…")
-        self.edges_button.setToolTip("Fit offset (and skew) so the events line up with the objects' edges over "
-                                     "windows spread through the sequence; assumes the object poses are right")
+        self.auto_button.setToolTip("Estimate the clock from the event rate vs the robot speed, then the clock and "
+                                    "every object's pose together from the event edges; the proposal is shown on "
+                                    "the frame (before / after) until you accept it")
+        self.edges_button = QtWidgets.QPushButton("Clock and poses from edges…")
+        self.edges_button.setToolTip("Fit offset (and skew) and every object's pose together so the events line up "
+                                     "with the objects' edges, starting at the clock in effect (a local fit: use "
+                                     "Auto when the clock may be far off)")
         reset_offset = QtWidgets.QToolButton(text="⟲")
         reset_offset.setToolTip("reset the offset correction to 0")
         reset_skew = QtWidgets.QToolButton(text="⟲")
@@ -146,6 +158,9 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.object_combo = QtWidgets.QComboBox()
         self.object_combo.addItems(self.session.object_names)
         self.frame_combo = QtWidgets.QComboBox()
+        for combo in (self.object_combo, self.frame_combo):   # as wide as the panel, not as its longest entry
+            combo.setSizeAdjustPolicy(QtWidgets.QComboBox.AdjustToMinimumContentsLengthWithIcon)
+            combo.setMinimumContentsLength(8)
         for f in FRAMES:
             self.frame_combo.addItem(FRAME_LABELS[f], f)
         row.addWidget(self.object_combo, 1)
@@ -169,17 +184,24 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.object_nudges = _NudgeGrid()
         self.object_nudges.nudged.connect(lambda k, a, s: self.nudge_object(k, a, s))
         v.addWidget(self.object_nudges)
+        # two lines of constant height: the dock does not move when the numbers change
         self.object_delta = QtWidgets.QLabel()
-        self.object_delta.setWordWrap(True)
+        self.object_delta.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Fixed)
+        self.object_delta.setFixedHeight(2 * self.object_delta.fontMetrics().lineSpacing() + 4)
+        self.object_delta.setToolTip("The object's correction, as the Refine dialog reports a change: how far its "
+                                     "box centre moved and by how much it turned (about that centre); in "
+                                     "brackets the components along the axes chosen above")
         v.addWidget(self.object_delta)
         row = QtWidgets.QHBoxLayout()
         self.refine_button = QtWidgets.QPushButton("Refine from events")
-        self.refine_button.setToolTip("Fit this object's pose to the event edges over several windows")
+        self.refine_button.setToolTip("Fit this object's pose to the event edges over several windows (clock and "
+                                      "other objects held); the proposal is shown on the frame until you accept it")
         reset = QtWidgets.QPushButton("Reset pose")
         row.addWidget(self.refine_button)
         row.addWidget(reset)
         v.addLayout(row)
         self.object_combo.currentTextChanged.connect(self._object_chosen)
+        self.frame_combo.currentIndexChanged.connect(lambda _: self._refresh_object())
         self.refine_button.clicked.connect(lambda: self.refineRequested.emit(self.current_object() or ""))
         reset.clicked.connect(lambda: self.current_object() and self.session.reset(self.current_object()))
         return g
@@ -195,6 +217,7 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.hand_eye_nudges.nudged.connect(self._nudge_hand_eye)
         v.addWidget(self.hand_eye_nudges)
         self.hand_eye_delta = QtWidgets.QLabel()
+        _two_lines(self.hand_eye_delta)
         v.addWidget(self.hand_eye_delta)
         reset = QtWidgets.QPushButton("Reset hand-eye")
         reset.clicked.connect(lambda: self.session.reset("hand_eye"))
@@ -263,6 +286,8 @@ class CorrectionPanel(QtWidgets.QWidget):
     def _on_session(self, change: Change) -> None:
         if change.kind in ("document", "objects"):
             self.refresh()
+        elif change.kind == "time" and self.current_frame() == "camera":
+            self._refresh_object()          # camera axes turn with the camera
 
     def refresh(self) -> None:
         self._updating = True
@@ -288,9 +313,19 @@ class CorrectionPanel(QtWidgets.QWidget):
 
     def _refresh_object(self) -> None:
         name = self.current_object()
-        if not name:
-            self.object_delta.setText("")
-            return
-        rv, t = delta_components(self.session.scene.corrections.object_delta(name))
-        self.object_delta.setText(f"correction (base frame): Δ rot {np.linalg.norm(rv):.3f}°, "
-                                  f"Δ t {np.linalg.norm(t):.2f} mm [{t[0]:+.2f}, {t[1]:+.2f}, {t[2]:+.2f}] mm")
+        self.object_delta.setText(self.pose_readout(name) if name else "")
+
+    def pose_readout(self, name: str) -> str:
+        """The correction of object ``name`` in the chosen axes: displacement of its box centre (mm) and
+        rotation (degrees), the numbers the Refine dialog reports (:func:`evpose.core.document.pose_edit.pose_change`)."""
+        scene = self.session.scene
+        try:
+            centre = scene.model(name).bbox_center_m
+        except InputError as exc:               # an unreadable mesh: the scene's own error says which (the frame
+            return f"no readout: {exc}"          # views report it too); the panel stays usable
+        angle, rv, moved = pose_change(scene.corrections.object_delta(name), scene.manifest.object(name).T_base_obj,
+                                       centre, self.current_frame(), self.session.current_T_base_cam())
+        dist = np.linalg.norm(moved)
+        rv, moved = np.round(rv, 3) + 0.0, np.round(moved, 2) + 0.0      # no "-0.00"
+        return (f"centre moved {dist:.2f} mm  [{moved[0]:+.2f}, {moved[1]:+.2f}, {moved[2]:+.2f}] mm\n"
+                f"rotated {angle:.3f}°  [{rv[0]:+.3f}, {rv[1]:+.3f}, {rv[2]:+.3f}]°")

@@ -47,6 +47,15 @@ class ObjectList(QtWidgets.QTableWidget):
         connect_view(self, session.changed, self._on_session)
         self.refresh()
 
+    def fit_rows(self, max_rows: int = 6) -> None:
+        """Exactly as tall as its rows (up to ``max_rows``, then it scrolls): no empty space under them."""
+        self.resizeRowsToContents()
+        rows = sum(self.rowHeight(r) for r in range(min(self.rowCount(), max_rows)))
+        h = self.horizontalHeader().sizeHint().height() + rows + 2 * self.frameWidth()
+        if self.rowCount() > max_rows:
+            h += self.horizontalScrollBar().sizeHint().height()
+        self.setFixedHeight(max(h, 40))
+
     def _item_changed(self, item: QtWidgets.QTableWidgetItem) -> None:
         if self._updating or item.column() != 0:
             return

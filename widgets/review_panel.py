@@ -55,7 +55,13 @@ class ReviewPanel(QtWidgets.QWidget):
         self.next_flagged = QtWidgets.QPushButton("Next flagged (Shift+N)")
         self.next_unreviewed.clicked.connect(lambda: self.goto_next(lambda s: s is None))
         self.next_flagged.clicked.connect(lambda: self.goto_next(lambda s: s == "flagged"))
-        row.addWidget(self.range_button)
+        remove = QtWidgets.QPushButton("Remove mark")
+        remove.setToolTip("remove the mark selected in the list")
+        remove.clicked.connect(self.remove_selected)
+        row.addWidget(self.range_button)        # two buttons a row: the panel fits a narrow column
+        row.addWidget(remove)
+        lay.addLayout(row)
+        row = QtWidgets.QHBoxLayout()
         row.addWidget(self.next_unreviewed)
         row.addWidget(self.next_flagged)
         lay.addLayout(row)
@@ -65,10 +71,8 @@ class ReviewPanel(QtWidgets.QWidget):
         self.list.setResizeMode(QtWidgets.QListView.Adjust)
         self.list.itemDoubleClicked.connect(self._jump)
         lay.addWidget(self.list, 1)
-        remove = QtWidgets.QPushButton("Remove mark")
-        remove.clicked.connect(self._remove_selected)
-        lay.addWidget(remove)
         self.status = QtWidgets.QLabel()
+        self.status.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Preferred)  # text-proof
         lay.addWidget(self.status)
         connect_view(self, session.changed, self._on_session)
         self.refresh()
@@ -87,19 +91,37 @@ class ReviewPanel(QtWidgets.QWidget):
         self.note.clear()
 
     def goto_next(self, predicate) -> bool:
+        """Go to the next window whose review status satisfies ``predicate``; after the last one, wrap around to
+        the first from the start of the recording (N / Shift+N cycle through all of them)."""
         t = self.session.next_window_where(predicate)
+        wrapped = t is None
+        if wrapped:
+            t = self.first_window_where(predicate)
         if t is None:
-            self.status.setText("none found after the current window")
+            self.status.setText("none found")
             return False
         self.session.set_time(t)
-        self.status.setText(self.summary)
+        self.status.setText(self.summary + ("  (wrapped around to the start)" if wrapped else ""))
         return True
+
+    def first_window_where(self, predicate) -> int | None:
+        """Centre time of the first window, from the start of the recording up to the current one (on the current
+        window's grid), whose review status satisfies ``predicate``; None if there is none."""
+        t0 = self.session.time_range[0]
+        w = max(int(self.session.view.window_us), 1)
+        now = int(self.session.view.t_us)
+        status = self.session.scene.corrections.review_status
+        for t in range(t0 + (now - t0) % w, now + 1, w):
+            if predicate(status(t)):
+                return t
+        return None
 
     def _jump(self, item: QtWidgets.QListWidgetItem) -> None:
         mark = item.data(QtCore.Qt.UserRole)
         self.session.set_time((mark.t0_us + mark.t1_us) // 2)
 
-    def _remove_selected(self) -> None:
+    def remove_selected(self) -> None:
+        """Remove the mark selected in the list (nothing when none is)."""
         item = self.list.currentItem()
         if item is not None:
             self.session.remove_review(item.data(QtCore.Qt.UserRole))

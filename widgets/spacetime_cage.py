@@ -1,6 +1,10 @@
 """The space-time view's frame of reference: the span's cage (the sensor rectangle at both ends of the
 span joined along t, with t ticks in ms and the axis names) and the current window's slab.
 
+The texts follow the camera preset (:meth:`SpanCage.set_preset`): an axis seen end-on has no name and no ticks
+(in the front view the t ticks would all land on one spot), and the names sit beside the sensor's edges, inside
+the margin the presets leave around the box.
+
 Coordinates are data coordinates ``(x px, y px, t ms)`` relative to the data's centre time; the parent
 node's transform maps them to the scene (:mod:`evpose.widgets.spacetime_camera`).
 """
@@ -44,6 +48,8 @@ class SpanCage:
         self._W, self._H = width - 1, height - 1
         self.upload_counts = upload_counts
         self._key = None
+        self._preset = "oblique"
+        self._ticks = np.zeros(0)
         self.line = scene.visuals.Line(parent=parent, color=CAGE_RGBA, connect="segments", width=1,
                                        method="gl", antialias=False)
         self.line.set_gl_state("translucent", depth_test=False)
@@ -77,14 +83,39 @@ class SpanCage:
             segs.append([base, base + 1])
         self.line.set_data(pos=np.array(pts, np.float32), connect=np.array(segs, np.uint32))
         self.upload_counts["cage"] += 1
-        labels = [f"{t:+g}" if t else "0" for t in ticks]
-        labels[-1] += " ms"
-        self.tick_text.text = labels
-        self.tick_text.pos = np.array([[-2.2 * tick_len, H + 0.04 * H, t] for t in ticks], np.float32)
-        self.axis_text.text = ["x", "y", "t (ms)"]
-        self.axis_text.pos = np.array([[W + 0.06 * W, 0, -h], [0, H + 0.09 * H, -h],
-                                       [-0.05 * W, H + 0.15 * H, h + 0.08 * 2 * h]], np.float32)
+        self._ticks = ticks
+        self._place_text()
         return True
+
+    def set_preset(self, name: str) -> None:
+        """Show the axis names and t ticks that camera preset ``name`` can read (see the module docstring)."""
+        if name != self._preset:
+            self._preset = name
+            self._place_text()
+
+    def _place_text(self) -> None:
+        """Axis names beside the sensor's edges (x over the top edge, y left of the left edge, t under the
+        bottom-left edge at the span's end) and the t tick labels, those of axes seen end-on left out."""
+        W, H, preset = self._W, self._H, self._preset
+        ticks = self._ticks
+        h = self._key[2] if self._key else 0.0
+        tick_len = 0.03 * max(W, H)
+        # t's name clear of its tick labels: under their middle where t runs across the screen (side), past the
+        # last one where it runs up (top), beside their middle in the oblique view (its far ticks crowd together)
+        t_name = {"side": [-2.2 * tick_len, H + 0.16 * H, 0.0], "top": [-2.2 * tick_len, H, h + 0.14 * h]}.get(
+            preset, [-7.0 * tick_len, H + 0.12 * H, 0.0])
+        names = {"x": [W / 2, -0.08 * H, -h], "y": [-0.08 * W, H / 2, -h], "t (ms)": t_name}
+        hidden = {"front": ("t (ms)",), "side": ("x",), "top": ("y",)}.get(preset, ())
+        shown = [n for n in names if n not in hidden]
+        self.axis_text.text = shown
+        self.axis_text.pos = np.array([names[n] for n in shown], np.float32)
+        if preset == "front" or not len(ticks):
+            self.tick_text.visible = False
+            return
+        labels = [f"{t:+g}" if t else "0" for t in ticks]
+        self.tick_text.text = labels
+        self.tick_text.pos = np.array([[-2.2 * tick_len, H + 0.07 * H, t] for t in ticks], np.float32)
+        self.tick_text.visible = True
 
 
 class WindowSlab:

@@ -1,7 +1,8 @@
-"""The event cloud's vispy visual: GL points with their own small shaders, the polarity as one float
-mixing the ON / OFF colours from uniforms.
+"""The event cloud's vispy visual: GL points with their own small shaders, each point's colour one float: the
+polarity mixing the ON / OFF colours from uniforms, or (packed mode) a 0xRRGGBB colour of its own, e.g. its
+object's, at one alpha (no per-point palette lookup: indexing a uniform array costs software OpenGL ~20 %).
 
-A point costs 16 bytes on the GPU (a float32 (x, y, t) position and a float32 polarity, two separately
+A point costs 16 bytes on the GPU (a float32 (x, y, t) position and a float32 colour index, two separately
 updated vertex buffers) instead of the 56 bytes of ``Markers.set_data``'s interleaved record, and its
 fragments run a disc test and a colour instead of ``Markers``' symbol, edge, antialiasing and lighting
 code: the same pixels (a 2 px disc with no edge and no antialiasing, the same transforms) drawn several
@@ -15,6 +16,15 @@ import numpy as np
 
 from evpose.widgets.spacetime_style import OFF_RGBA, ON_RGBA
 
+#: Colour classes a layer can tell apart (e.g. objects; more wrap around).
+PALETTE_SIZE = 16
+
+
+def pack_rgb(rgba) -> float:
+    """An RGB(A) colour in [0, 1] as the packed float ``0xRRGGBB`` the packed mode reads (exact in float32)."""
+    r, g, b = (int(round(255 * float(c))) for c in tuple(rgba)[:3])
+    return float((r << 16) | (g << 8) | b)
+
 
 def use_vispy() -> None:
     """Import vispy with the PySide6 backend (or whatever backend this process already chose)."""
@@ -27,7 +37,8 @@ def use_vispy() -> None:
 
 
 #: The event points' shaders: a GL point of ``u_size`` framebuffer pixels (a disc, as ``Markers``' "disc" with no
-#: edge and no antialiasing draws it), coloured by mixing the OFF and ON colours with the polarity. Positions go
+#: edge and no antialiasing draws it), coloured by mixing the OFF and ON colours with the polarity, or by its own
+#: packed RGB (``u_packed`` 1). Positions go
 #: through the same two transforms as ``Markers`` (visual -> framebuffer -> render), so the points land on the same
 #: pixels; the fragment work is one length and one compare instead of ``Markers``' symbol, edge, antialiasing and
 #: lighting code, which on software OpenGL (llvmpipe) cost about 4 µs a point.
@@ -36,13 +47,17 @@ attribute vec3 a_position;
 attribute float a_polarity;
 uniform vec4 u_on_color;
 uniform vec4 u_off_color;
+uniform float u_packed;
+uniform float u_packed_alpha;
 uniform float u_size;
 varying vec4 v_color;
 void main() {
     vec4 fb_pos = $visual_to_framebuffer(vec4(a_position, 1.0));
     gl_Position = $framebuffer_to_render(fb_pos);
     gl_PointSize = u_size;
-    v_color = mix(u_off_color, u_on_color, a_polarity);
+    float v = a_polarity;
+    vec3 rgb = vec3(floor(v / 65536.0), mod(floor(v / 256.0), 256.0), mod(v, 256.0)) / 255.0;
+    v_color = u_packed > 0.5 ? vec4(rgb, u_packed_alpha) : mix(u_off_color, u_on_color, a_polarity);
 }
 """
 POINTS_FRAGMENT_SHADER = """
@@ -74,11 +89,18 @@ def _make_event_cloud_class(lean: bool):
             def set_events(self, *a, **k):
                 raise RuntimeError("lean upload unavailable; use set_data")
 
+            def set_colors(self, *a) -> None:           # colours go per point through set_data
+                pass
+
+            def set_packed(self, *a) -> None:
+                pass
+
         return create_visual_node(StockMarkersVisual)
 
     class EventPointsVisual(Visual):
-        """Events as GL points: positions (N, 3) float32 and polarity (N,) float32 in two separately
-        updated vertex buffers, colours and size from uniforms (see :data:`POINTS_VERTEX_SHADER`).
+        """Events as GL points: positions (N, 3) float32 and one colour float each (N,) float32 (the polarity, or
+        a packed 0xRRGGBB in packed mode) in two separately updated vertex buffers, the colours and size from
+        uniforms (see :data:`POINTS_VERTEX_SHADER`).
 
         ``_index_buffer`` (a ``Visual`` attribute) may be set to draw a subset (the coarse prefix)."""
 
@@ -96,12 +118,21 @@ def _make_event_cloud_class(lean: bool):
             self.set_colors(ON_RGBA, OFF_RGBA)
 
         def set_colors(self, on_rgba, off_rgba) -> None:
+            """Polarity mode: ON and OFF colours (RGBA in [0, 1])."""
             self.shared_program["u_on_color"] = tuple(float(c) for c in on_rgba)
             self.shared_program["u_off_color"] = tuple(float(c) for c in off_rgba)
+            self.shared_program["u_packed"] = 0.0
+            self.shared_program["u_packed_alpha"] = 1.0
+            self.update()
+
+        def set_packed(self, alpha: float) -> None:
+            """Packed mode: each point's float is its 0xRRGGBB colour (:func:`pack_rgb`), drawn at ``alpha``."""
+            self.shared_program["u_packed"] = 1.0
+            self.shared_program["u_packed_alpha"] = float(alpha)
             self.update()
 
         def set_events(self, pos: np.ndarray | None, polarity: np.ndarray | None, size: float) -> None:
-            """Upload what is given: ``pos`` (N, 3) float32 and/or ``polarity`` (N,) float32 in {0, 1};
+            """Upload what is given: ``pos`` (N, 3) float32 and/or ``polarity`` (N,) float32 colour floats;
             None keeps that buffer. Both must end up with the same length. ``size``: point diameter in
             logical pixels."""
             p = self.shared_program

@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.widgets.spacetime_cloud import event_cloud_node_class
+from evpose.widgets.spacetime_cloud import event_cloud_node_class, pack_rgb
 from evpose.widgets.spacetime_style import OFF_RGBA, ON_RGBA, ORDER_POINTS, POINT_ANTIALIAS, POINT_SIZE_PX
+
+#: Upload counter names of a layer: (positions, colour indices).
+DEFAULT_COUNTERS = ("points", "polarity")
 
 #: While the camera moves (drag, wheel, time-scale drag) only this many points are drawn (a time-uniform
 #: subset: the vertex buffer is ordered so that every prefix is one), then all again.
@@ -47,7 +50,12 @@ class PointLayer:
     lean : bool
         Use the 16-byte-per-point upload when vispy's shader allows it (else ``Markers.set_data``).
     upload_counts : dict
-        The view's buffer-upload counters; this layer increments ``points``, ``polarity`` and ``lod``.
+        The view's buffer-upload counters; this layer increments ``counters`` (positions, colour indices) and
+        ``lod``.
+    order : int
+        Draw order of the visual.
+    counters : (str, str)
+        Names of this layer's upload counters.
 
     Attributes
     ----------
@@ -57,12 +65,18 @@ class PointLayer:
     lod_count : points in the coarse prefix drawn while interacting.
     """
 
-    def __init__(self, parent, lean: bool, upload_counts: dict):
+    def __init__(self, parent, lean: bool, upload_counts: dict, order: int = ORDER_POINTS,
+                 counters: tuple[str, str] = DEFAULT_COUNTERS):
         cloud_class = event_cloud_node_class(lean)
         self.markers = cloud_class(parent=parent, scaling="fixed", antialias=POINT_ANTIALIAS)
         self.markers.set_gl_state("translucent", depth_test=False, cull_face=False)
-        self.markers.order = ORDER_POINTS
+        self.markers.order = order
         self.upload_counts = upload_counts
+        self._counters = counters
+        for name in counters:
+            upload_counts.setdefault(name, 0)
+        self.palette: tuple = (OFF_RGBA, ON_RGBA)
+        self._packed: np.ndarray | None = None  # packed 0xRRGGBB per class (palettes of more than two colours)
         self.stride = 1
         self.shown = 0
         self.lod_count = 0
@@ -70,10 +84,27 @@ class PointLayer:
         self._last_pos_src = None      # (array, stride) last uploaded as positions (arrays are not mutated)
         self._last_pol: np.ndarray | None = None
 
+    def set_palette(self, colors) -> None:
+        """The RGBA colours that the colour indices select: two (OFF, ON: the polarity, mixed in the shader) or
+        more (classes, e.g. objects: each point's colour packed into its float, one alpha for all). The lean
+        visual re-colours its points without an upload of positions; the stock ``Markers`` fallback re-uploads on
+        the next :meth:`set_points`."""
+        colors = tuple(tuple(float(c) for c in rgba) for rgba in colors)
+        if colors == self.palette:
+            return
+        self.palette = colors
+        self._packed = None if len(colors) <= 2 else np.array([pack_rgb(c) for c in colors], np.float32)
+        if self._packed is None:
+            self.markers.set_colors(colors[1], colors[0])
+        else:
+            self.markers.set_packed(colors[0][3])
+        self._last_pol = None                   # the colour floats change meaning: upload them again
+
     def set_points(self, points: np.ndarray, polarity: np.ndarray, budget: int) -> None:
-        """Upload ``points`` (N, 3) (x px, y px, t ms) and ``polarity`` (N,) {0, 1}, thinned to ``budget``.
+        """Upload ``points`` (N, 3) (x px, y px, t ms) and colour indices ``polarity`` (N,) (the polarity, {0, 1},
+        or indices into :meth:`set_palette`'s colours), thinned to ``budget``.
         The arrays are treated as immutable: the same ``points`` array again uploads no positions, and
-        the polarity buffer is uploaded only when its content changed."""
+        the colour buffer is uploaded only when its content changed."""
         n = len(points)
         self.stride = stride_for(n, int(budget))
         last = self._last_pos_src
@@ -114,22 +145,25 @@ class PointLayer:
                 cloud.set_data(None)
             self._last_pol = None
             return
+        n_pos, n_col = self._counters
         if not cloud.lean:   # fallback: the stock interleaved upload of everything
             if pos is None:
                 pos = cloud._data["a_position"]
-            colors = np.where(pol_u8[:, None] > 0, np.asarray(ON_RGBA, np.float32),
-                              np.asarray(OFF_RGBA, np.float32))
+            colors = np.asarray(self.palette, np.float32)[np.asarray(pol_u8, np.int64)]
             cloud.set_data(pos, face_color=colors, edge_width=0, size=POINT_SIZE_PX, symbol="disc")
-            self.upload_counts["points"] += 1
-            self.upload_counts["polarity"] += 1
+            self.upload_counts[n_pos] += 1
+            self.upload_counts[n_col] += 1
             self._last_pol = pol_u8.copy()
             return
         pol_changed = (self._last_pol is None or len(self._last_pol) != len(pol_u8)
                        or not np.array_equal(self._last_pol, pol_u8))
-        pol = (pol_u8 > 0).astype(np.float32) if pol_changed else None
+        pol = None
+        if pol_changed:
+            idx = np.asarray(pol_u8, np.int64)
+            pol = self._packed[idx] if self._packed is not None else idx.astype(np.float32)
         cloud.set_events(pos, pol, POINT_SIZE_PX)
         if pos is not None:
-            self.upload_counts["points"] += 1
+            self.upload_counts[n_pos] += 1
         if pol_changed:
-            self.upload_counts["polarity"] += 1
+            self.upload_counts[n_col] += 1
             self._last_pol = np.array(pol_u8, copy=True)

@@ -1,5 +1,6 @@
 """The objects' tubes in the space-time view: each object's projected silhouettes stacked along t as
-closed polylines, all objects in one ``Line`` visual (segment pairs) over a white casing.
+closed polylines, all objects in one ``Line`` visual (segment pairs) over a white casing, and the translucent
+skin joining consecutive silhouettes (core's ``SpaceTimeData.surfaces``) in one ``Mesh`` visual.
 
 A clock offset between the event camera and the pose source shows as a *shear* between these tubes
 (built from the labelled poses) and the event sheets a moving edge sweeps.
@@ -9,8 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from evpose.widgets.spacetime_style import (
+    ORDER_SURFACES,
     ORDER_TUBE_CASING,
     ORDER_TUBES,
+    SURFACE_ALPHA,
     TUBE_CASING_PX,
     TUBE_CASING_RGBA,
     TUBE_WIDTH_PX,
@@ -50,8 +53,27 @@ def tube_segments(tubes, hidden) -> tuple[np.ndarray, np.ndarray, np.ndarray] | 
     return np.concatenate(verts), np.concatenate(cols), np.concatenate(segs).astype(np.uint32)
 
 
+def surface_mesh(surfaces, hidden, alpha: float = SURFACE_ALPHA):
+    """The surfaces of the objects not in ``hidden`` as one mesh: ``(vertices (V, 3) float32, triangles (F, 3)
+    uint32, vertex colours (V, 4) float32)``, or None when there is none.
+
+    ``surfaces``: ``[(name, (r, g, b) 0-255, vertices (V, 3), triangles (F, 3))]``."""
+    verts, faces, cols = [], [], []
+    base = 0
+    for name, rgb, v, f in surfaces:
+        if name in hidden or len(f) == 0:
+            continue
+        verts.append(np.asarray(v, np.float32))
+        faces.append(np.asarray(f, np.uint32) + base)
+        cols.append(np.broadcast_to(np.array([*(c / 255.0 for c in rgb), alpha], np.float32), (len(v), 4)))
+        base += len(v)
+    if not verts:
+        return None
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(cols)
+
+
 class TubeLayer:
-    """The tube and casing visuals; ``upload_counts["tubes"]`` counts the uploads."""
+    """The tube, casing and surface visuals; ``upload_counts["tubes"]`` counts the uploads."""
 
     def __init__(self, parent, upload_counts: dict):
         from vispy import scene
@@ -68,12 +90,18 @@ class TubeLayer:
         self.line.set_gl_state("translucent", depth_test=False)
         self.line.order = ORDER_TUBES
         self.line.visible = False
+        self.surface = scene.visuals.Mesh(parent=parent)
+        self.surface.set_gl_state("translucent", depth_test=False, cull_face=False)
+        self.surface.order = ORDER_SURFACES
+        self.surface.visible = False
 
-    def update(self, tubes, hidden) -> bool:
-        """Draw the tubes of the objects not ``hidden`` (see :func:`tube_segments`); True when what is
-        drawn changed (nothing is uploaded otherwise)."""
+    def update(self, tubes, hidden, surfaces=()) -> bool:
+        """Draw the tubes and surfaces of the objects not ``hidden`` (see :func:`tube_segments` and
+        :func:`surface_mesh`); True when what is drawn changed (nothing is uploaded otherwise)."""
         packed = tube_segments(tubes, hidden)
-        key = None if packed is None else (packed[0].tobytes(), packed[1].tobytes())
+        mesh = surface_mesh(surfaces, hidden)
+        key = (None if packed is None else (packed[0].tobytes(), packed[1].tobytes()),
+               None if mesh is None else (mesh[0].tobytes(), mesh[2].tobytes()))
         if key == self._key:
             return False
         self._key = key
@@ -84,5 +112,12 @@ class TubeLayer:
             self.casing.set_data(pos=v, connect=s)
             self.line.set_data(pos=v, color=c, connect=s)
             self.line.visible = self.casing.visible = True
+        if mesh is None:
+            self.surface.visible = False
+        else:
+            v, f, c = mesh
+            self.surface.set_data(vertices=v, faces=f, vertex_colors=c)
+            self.surface.visible = True
+        if packed is not None or mesh is not None:
             self.upload_counts["tubes"] += 1
         return True

@@ -2,7 +2,10 @@
 projected silhouettes stacked along t as "tubes" (vispy, DESIGN sections 1-2).
 
 A clock offset between the event camera and the pose source shows here as a *shear*: the event
-sheets swept by a moving edge lean one way, the tubes built from the labelled poses another.
+sheets swept by a moving edge lean one way, the tubes built from the labelled poses another. To make that
+plain, the events within a band of a few pixels of a silhouette (at their own time, computed in core) are
+drawn on top in their object's colour and the rest dimmed, and the tubes have a translucent skin: with the
+right clock the coloured events hug the skins; with a wrong one the moving edges' events leave the band.
 
 The widget is a view of a :class:`evpose.core.session.model.Session`: it takes the session in its constructor,
 subscribes to its changes (view options, object visibility) and draws the display-ready
@@ -11,15 +14,19 @@ subscribes to its changes (view options, object visibility) and draws the displa
 over with :meth:`SpaceTimeView.set_data`; the widget never imports ``app``.
 
 Its parts, one module each: the scene layout, camera presets and time scale
-(:mod:`~evpose.widgets.spacetime_camera`); the event points, thinned to the point budget and uploaded
-only when changed (:mod:`~evpose.widgets.spacetime_points`, drawing with the lean ``Markers`` visual of
+(:mod:`~evpose.widgets.spacetime_camera`); the event points in two layers (the rest and the band, split by
+:mod:`~evpose.widgets.spacetime_band`), thinned to the point budget and uploaded only when changed
+(:mod:`~evpose.widgets.spacetime_points`, drawing with the lean ``Markers`` visual of
 :mod:`~evpose.widgets.spacetime_cloud`); the span's cage and the current window's slab
-(:mod:`~evpose.widgets.spacetime_cage`); the tubes (:mod:`~evpose.widgets.spacetime_tubes`); the legend
-(:mod:`~evpose.widgets.spacetime_legend`); the controls (:mod:`~evpose.widgets.spacetime_controls`).
+(:mod:`~evpose.widgets.spacetime_cage`); the tubes and their skins (:mod:`~evpose.widgets.spacetime_tubes`); the
+legend above the canvas (:mod:`~evpose.widgets.spacetime_legend`); the controls
+(:mod:`~evpose.widgets.spacetime_controls`).
 
 Controls: reset / front / side / top camera presets (``TurntableCamera``: drag orbits, wheel zooms,
 shift-drag pans), the time-scale slider, the span (ms) and point-budget spin boxes (both written to
-the session's view state; the owner recomputes on ``"view"``), and "N of M events shown".
+the session's view state; the owner recomputes on ``"view"``), "N of M events shown", and the by-object
+colouring with its band width (view state too; applied at once to the data at hand) and the share of events
+in the band.
 """
 from __future__ import annotations
 
@@ -29,13 +36,14 @@ from PySide6 import QtCore, QtWidgets
 
 from evpose.core.signals import Change
 from evpose.widgets.binding import connect_view
+from evpose.widgets.spacetime_band import BandSplitter, band_palette, rest_palette
 from evpose.widgets.spacetime_cage import SpanCage, WindowSlab
 from evpose.widgets.spacetime_camera import OBLIQUE_FOV, TimeScale, frame_preset
 from evpose.widgets.spacetime_cloud import use_vispy
 from evpose.widgets.spacetime_controls import SpaceTimeControls
 from evpose.widgets.spacetime_legend import Legend
 from evpose.widgets.spacetime_points import PointLayer, stride_for
-from evpose.widgets.spacetime_style import BACKGROUND
+from evpose.widgets.spacetime_style import BACKGROUND, ORDER_BAND_POINTS
 from evpose.widgets.spacetime_tubes import TubeLayer
 
 #: After a wheel step, the coarse subset is drawn for this long (ms) before all points again.
@@ -55,6 +63,8 @@ class SpaceTimeView(QtWidgets.QWidget):
 
     #: Use the lean event upload when vispy's shader allows it (class switch for benchmarks and tests).
     lean_upload = True
+    #: The "Kymograph…" button: the owner shows the kymograph view (an x-t slice along a drawn line).
+    kymographRequested = QtCore.Signal()
 
     def __init__(self, session, parent=None):
         super().__init__(parent)
@@ -64,11 +74,16 @@ class SpaceTimeView(QtWidgets.QWidget):
         self._W, self._H = int(cam.width), int(cam.height)
         self._data = None
         self._tubes_all: list = []
+        self._surfaces_all: list = []
+        self._drawn_settings = None
         self._interacting = False
         self._closed = False
         #: Buffer uploads since construction (``points``, ``polarity``, ``tubes``, ``cage``, ``slab``, ``lod``):
         #: tests and the benchmark check that only changed buffers go to the GPU.
-        self.upload_counts = {"points": 0, "polarity": 0, "tubes": 0, "cage": 0, "slab": 0, "lod": 0}
+        self.upload_counts = {"points": 0, "polarity": 0, "band_points": 0, "band_colors": 0, "tubes": 0, "cage": 0,
+                              "slab": 0, "lod": 0}
+        self.splitter = BandSplitter()
+        self.split = None               # the Split drawn now (spacetime_band.Split)
         self._lod_timer = QtCore.QTimer(self)
         self._lod_timer.setSingleShot(True)
         self._lod_timer.setInterval(LOD_IDLE_MS)
@@ -81,7 +96,7 @@ class SpaceTimeView(QtWidgets.QWidget):
     # ====================================================================== construction
     def _build_scene(self) -> None:
         """The canvas, its turntable camera and the visuals, all under one node (``root``) whose transform
-        maps data ``(x px, y px, t ms)`` to the scene; the legend over the canvas."""
+        maps data ``(x px, y px, t ms)`` to the scene; the legend (a row above the canvas)."""
         from vispy import scene
         from vispy.visuals.transforms import MatrixTransform
 
@@ -94,10 +109,12 @@ class SpaceTimeView(QtWidgets.QWidget):
         self.root.transform = self._transform
         self.point_layer = PointLayer(self.root, self.lean_upload, self.upload_counts)
         self.markers = self.point_layer.markers
+        self.band_layer = PointLayer(self.root, self.lean_upload, self.upload_counts, ORDER_BAND_POINTS,
+                                     ("band_points", "band_colors"))
         self.cage = SpanCage(self.root, self._W, self._H, self.upload_counts)
         self.slab = WindowSlab(self.root, self._W, self._H, self.upload_counts)
         self.tube_layer = TubeLayer(self.root, self.upload_counts)
-        self.legend = Legend(self.canvas.native)
+        self.legend = Legend(self)
 
     def _build_controls(self) -> None:
         """The control rows under the canvas; their widgets are also attributes of the view."""
@@ -106,9 +123,11 @@ class SpaceTimeView(QtWidgets.QWidget):
             c.reset_button, c.front_button, c.side_button, c.top_button)
         self.scale_slider, self.scale_label, self.span_spin, self.budget_spin, self.info_label = (
             c.scale_slider, c.scale_label, c.span_spin, c.budget_spin, c.info_label)
+        self.by_object_check, self.band_spin = c.by_object_check, c.band_spin
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
         layout.setSpacing(3)
+        layout.addWidget(self.legend.label)
         layout.addWidget(self.canvas.native, 1)
         for row in c.rows:
             layout.addLayout(row)
@@ -120,10 +139,13 @@ class SpaceTimeView(QtWidgets.QWidget):
         self.front_button.clicked.connect(lambda: self.set_preset("front"))
         self.side_button.clicked.connect(lambda: self.set_preset("side"))
         self.top_button.clicked.connect(lambda: self.set_preset("top"))
+        self.controls.kymograph_button.clicked.connect(self.kymographRequested.emit)
         self.scale_slider.sliderPressed.connect(lambda: self.set_interacting(True))
         self.scale_slider.sliderReleased.connect(lambda: self.set_interacting(False))
         self.span_spin.valueChanged.connect(self._on_span_spin)
         self.budget_spin.valueChanged.connect(self._on_budget_spin)
+        self.band_spin.valueChanged.connect(lambda px: self.session.set_view_option(spacetime_band_px=float(px)))
+        self.by_object_check.toggled.connect(lambda on: self.session.set_view_option(spacetime_by_object=bool(on)))
 
     def _bind_session(self) -> None:
         """Show the session's view state, frame the empty span, then follow the session and the mouse."""
@@ -142,8 +164,8 @@ class SpaceTimeView(QtWidgets.QWidget):
     # ====================================================================== public API
     @property
     def shown_count(self) -> int:
-        """Events drawn now (after the widget's own stride)."""
-        return self.point_layer.shown
+        """Events drawn now (after the widget's own stride), both layers."""
+        return self.point_layer.shown + self.band_layer.shown
 
     @property
     def time_scale(self) -> float:
@@ -151,18 +173,20 @@ class SpaceTimeView(QtWidgets.QWidget):
         return self.time_axis.px_per_ms
 
     def set_data(self, data) -> None:
-        """Draw ``data`` (:class:`evpose.core.session.frames.SpaceTimeData`): events coloured by polarity, tubes of the
-        objects not hidden in the session, the current-window slab at t = 0 and the span's cage.
+        """Draw ``data`` (:class:`evpose.core.session.frames.SpaceTimeData`): the events within the session's band
+        of a silhouette in their object's colour on top and the rest dimmed (or all by polarity, when the data has
+        no distances or the session's ``spacetime_by_object`` is off), tubes and skins of the objects not hidden
+        in the session, the current-window slab at t = 0 and the span's cage.
 
-        More points than ``session.view.spacetime_budget`` are thinned by a stride before upload. The
-        arrays are treated as immutable: handing the same ``points`` array again uploads nothing, and the
-        polarity buffer is uploaded only when its content changed."""
+        More points than ``session.view.spacetime_budget`` are thinned by a stride before upload (the budget
+        shared by the two layers). The arrays are treated as immutable: handing the same ``points`` array again
+        uploads nothing, and a colour buffer is uploaded only when its content changed."""
         self._data = data
         if not self._alive():
             return      # closed or deleted with its parent: a late worker result has nowhere to go
-        self.point_layer.set_points(data.points, data.polarity, self.session.view.spacetime_budget)
-        self.point_layer.show_coarse(self._interacting)
+        self._set_points(data)
         self._tubes_all = list(data.tubes)
+        self._surfaces_all = list(getattr(data, "surfaces", ()))
         self._update_tubes()
         span_us = data.span_us or self.session.view.spacetime_span_us
         self.time_axis.follow_span(span_us)
@@ -181,6 +205,7 @@ class SpaceTimeView(QtWidgets.QWidget):
             return
         self._interacting = on
         self.point_layer.show_coarse(on)
+        self.band_layer.show_coarse(on)
         self.canvas.update()
 
     def set_time_scale(self, px_per_ms: float) -> None:
@@ -192,8 +217,9 @@ class SpaceTimeView(QtWidgets.QWidget):
         """Camera preset: ``"front"`` (along +t, like the frame view), ``"side"`` (along x: t to the right,
         rows down), ``"top"`` (down the rows: x to the right, t up) or ``"oblique"`` (the reset view).
         Front, side and top are orthographic, so the frame's geometry and a shear read true; the oblique
-        view has perspective."""
+        view has perspective. The axis names and t ticks follow (those of an axis seen end-on are hidden)."""
         frame_preset(self.view.camera, name, (self._W, self._H, self._depth_extent()), self._aspect())
+        self.cage.set_preset(name)
         self._preset = name
         self.canvas.update()
 
@@ -236,18 +262,47 @@ class SpaceTimeView(QtWidgets.QWidget):
                    else self.session.view.spacetime_span_us) * 1e-3
         return span_ms * self.time_axis.px_per_ms
 
+    def _set_points(self, data) -> None:
+        """Split ``data``'s events into the band and the rest (session settings, hidden objects) and hand each
+        layer its share of the budget."""
+        v = self.session.view
+        names = self.session.object_names
+        hidden_index = {k for k, n in enumerate(names) if n in v.hidden}
+        sp = self.split = self.splitter.split(data, v.spacetime_band_px, v.spacetime_by_object, hidden_index)
+        n = max(len(data.points), 1)
+        budget = int(v.spacetime_budget)
+        self.point_layer.set_palette(rest_palette(sp.by_object))
+        self.band_layer.set_palette(band_palette(getattr(data, "object_colors", ()) or ()))
+        band_budget = max(1, int(round(budget * len(sp.band_points) / n)))
+        self.point_layer.set_points(sp.rest_points, sp.rest_colors, max(1, budget - band_budget)
+                                    if len(sp.band_points) else budget)
+        self.band_layer.set_points(sp.band_points, sp.band_colors, band_budget)
+        self.point_layer.show_coarse(self._interacting)
+        self.band_layer.show_coarse(self._interacting)
+        self._drawn_settings = self._point_settings()
+
+    def _point_settings(self) -> tuple:
+        """What the split depends on besides the data (a change re-splits the data at hand)."""
+        v = self.session.view
+        return (float(v.spacetime_band_px), bool(v.spacetime_by_object), frozenset(v.hidden),
+                stride_for(len(self._data.points) if self._data is not None else 0, v.spacetime_budget))
+
     def _update_tubes(self) -> None:
         hidden = self.session.view.hidden
-        if self.tube_layer.update(self._tubes_all, hidden):
-            self.legend.show(self._tubes_all, hidden)
+        v = self.session.view
+        band = float(v.spacetime_band_px) if self.split is not None and self.split.by_object else None
+        self.tube_layer.update(self._tubes_all, hidden, self._surfaces_all)
+        self.legend.show(self._tubes_all, hidden, band)
 
     def _update_info(self) -> None:
-        self.controls.show_info(self._data, self.point_layer.shown, self.point_layer.stride,
+        self.controls.show_info(self._data, self.shown_count, self.point_layer.stride,
                                 self.session.view.spacetime_budget)
+        self.controls.show_band(self.split, self.session.view.spacetime_band_px)
 
     def _sync_from_view(self) -> None:
         v = self.session.view
-        self.controls.show_view_state(v.spacetime_span_us, v.spacetime_budget)
+        self.controls.show_view_state(v.spacetime_span_us, v.spacetime_budget, v.spacetime_band_px,
+                                      v.spacetime_by_object)
 
     # ------------------------------------------------------------------ slots
     def _on_session(self, change: Change) -> None:
@@ -256,12 +311,12 @@ class SpaceTimeView(QtWidgets.QWidget):
         if change.kind == "view":
             self._sync_from_view()
             self.slab.update(self.session.view.window_us)
-            if self._data is not None and stride_for(len(self._data.points),
-                                                     self.session.view.spacetime_budget) != self.point_layer.stride:
-                self.set_data(self._data)     # the budget changed: re-thin what we have until new data comes
+            if self._data is not None and self._point_settings() != self._drawn_settings:
+                self.set_data(self._data)     # budget or band changed: re-split what we have until new data comes
             self.canvas.update()
         elif change.kind == "objects":
-            self._update_tubes()    # hide / show at once with the tubes at hand; new data follows
+            if self._data is not None:
+                self.set_data(self._data)   # hide / show at once with the data at hand; new data follows
             self.canvas.update()
 
     def _on_mouse_press(self, event) -> None:

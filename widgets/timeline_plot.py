@@ -25,7 +25,27 @@ from evpose.widgets.timeline_style import (
     white_layout,
 )
 
-__all__ = ["RatePlot"]
+__all__ = ["RatePlot", "robust_range"]
+
+#: The speed axes reach ``CLIP_MARGIN`` × the ``CLIP_QUANTILE`` quantile of the curve; higher samples (glitches of
+#: the trajectory, e.g. a 1300 °/s spike among 100 °/s motion) are drawn cut at the top.
+CLIP_QUANTILE, CLIP_MARGIN = 0.99, 1.3
+
+
+def robust_range(values) -> tuple[float, float, bool]:
+    """``(low, high, clipped)`` y range of a curve that spikes do not compress: from ``low`` = min(0, minimum) to
+    :data:`CLIP_MARGIN` × the :data:`CLIP_QUANTILE` quantile (measured from ``low``), or to the maximum when that is
+    lower (then nothing is clipped). NaN ignored; (0, 1, False) without a finite value."""
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return 0.0, 1.0, False
+    lo, top = min(float(v.min()), 0.0), float(v.max())
+    cap = lo + CLIP_MARGIN * (float(np.quantile(v, CLIP_QUANTILE)) - lo)
+    hi, clipped = (cap, True) if top > cap > lo else (top, False)
+    if hi <= lo:
+        hi = lo + 1.0
+    return lo, hi, clipped
 
 
 class RatePlot:
@@ -107,16 +127,23 @@ class RatePlot:
             v.setXLink(self.vb)
             v.setMouseEnabled(x=False, y=False)
             v.setAcceptedMouseButtons(QtCore.Qt.NoButton)
-            v.enableAutoRange(x=False, y=True)
-            v.setAutoVisible(y=True)
+            v.enableAutoRange(x=False, y=False)     # robust range from set_curves: spikes do not squash the curve
 
     def set_curves(self, data) -> None:
         """Show a :class:`~evpose.core.session.timeline.TimelineData`: rate, speeds (NaN where the
         trajectory gives none) and the holes."""
         valid = np.asarray(data.speed_valid, bool)
         self.rate_item.setData(data.t_s, np.asarray(data.rate_hz, np.float64))
-        self.speed_item.setData(data.t_s, np.where(valid, data.speed_mps, np.nan))
-        self.angular_item.setData(data.t_s, np.where(valid, data.angular_dps, np.nan))
+        for item, vb, axis, values, unit in ((self.speed_item, self.speed_vb, self.plot.getAxis("right"),
+                                              data.speed_mps, "m/s"),
+                                             (self.angular_item, self.angular_vb, self.angular_axis,
+                                              data.angular_dps, "°/s")):
+            values = np.where(valid, np.asarray(values, np.float64), np.nan)
+            lo, hi, clipped = robust_range(values)
+            item.setData(data.t_s, np.clip(values, lo, hi))     # spikes drawn flat at the top, not off the axis
+            vb.setYRange(lo, hi, padding=0.02)
+            axis.setToolTip(f"spikes above {hi:.3g} {unit} are cut at the top of the axis (robust scale: "
+                            f"{CLIP_MARGIN:g} × the {100 * CLIP_QUANTILE:g}th percentile)" if clipped else "")
         self.shade_holes(getattr(data, "holes_s", np.zeros((0, 2))))
 
     def shade_holes(self, holes_s) -> None:

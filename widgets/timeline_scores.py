@@ -1,6 +1,7 @@
 """The timeline's score row: per-object alignment scores over time, each in its object's colour, with
 the worst window of each object marked (x), a cursor and the current window's span; it also keeps the
-control row's "Scores" check box and "Worst ▾" menu in step with the scores shown.
+control row's "Scores" check box and "Worst ▾" menu in step with the scores shown. The legend is a line above the
+row (never over the scores), and the y range holds every score, values above 1 included.
 
 Low-evidence windows (their scores say little about the pose) are drawn apart, as grey rings, and are never
 the worst; a stale row (computed before the clock or a pose changed) is dimmed with a label
@@ -35,6 +36,32 @@ from evpose.widgets.timeline_style import (
 __all__ = ["ScoreRow"]
 
 OTHER_COLOR = (80, 80, 80)      # a score series that names no object of the scene
+LEGEND_H = 15                   # px of the legend line above the row
+
+
+def legend_html(entries) -> str:
+    """One line of ``(name, rgb, faint)`` legend entries: a line of the curve's colour, then the name."""
+    parts = []
+    for name, rgb, faint in entries:
+        colour = pg.mkColor(*rgb).name()
+        style = "color:#999" if faint else "color:#222"
+        parts.append(f"<span style='color:{colour}'><b>&#8212;&#8212;</b></span>"
+                     f"&nbsp;<span style='{style}'>{name}</span>")
+    return "&nbsp;&nbsp;&nbsp; ".join(parts)
+
+
+def score_range(scores: dict, lower_is_better: bool = False) -> tuple[float, float]:
+    """The row's y range: every finite score (values above 1 too), with 0 and 1 always in view for scores (higher
+    is better); a little margin so the extremes are not drawn on the border."""
+    finite = [s[np.isfinite(s)] for s in scores.values()]
+    finite = np.concatenate(finite) if finite else np.zeros(0)
+    lo, hi = (0.0, 1.0) if not lower_is_better else (0.0, 0.0)
+    if finite.size:
+        lo, hi = min(lo, float(finite.min())), max(hi, float(finite.max()))
+    if hi <= lo:
+        hi = lo + 1.0
+    pad = 0.06 * (hi - lo)
+    return lo - pad, hi + pad
 
 
 class ScoreRow:
@@ -75,7 +102,11 @@ class ScoreRow:
         self.low_bands: list[pg.LinearRegionItem] = []
         self.glw = white_layout()
         self.vb = ScrubViewBox(scrub, enableMenu=False)
-        self.plot: pg.PlotItem = self.glw.addPlot(row=0, col=0, viewBox=self.vb)
+        # the legend: one line above the plot, never over the scores
+        self.glw.ci.setSpacing(0)
+        self.legend = self.glw.addLabel("", row=0, col=0, justify="left", size="8pt")
+        self.legend.setMaximumHeight(LEGEND_H)
+        self.plot: pg.PlotItem = self.glw.addPlot(row=1, col=0, viewBox=self.vb)
         sp = self.plot
         sp.setMenuEnabled(False)
         sp.hideButtons()
@@ -89,10 +120,8 @@ class ScoreRow:
         sp.showAxis("right")
         sp.getAxis("right").setWidth(2 * RIGHT_AXIS_W)
         sp.getAxis("right").setStyle(showValues=False)
-        self.vb.enableAutoRange(x=False, y=True)
-        self.vb.setAutoVisible(y=True)
-        self.legend = sp.addLegend(offset=(4, 2), labelTextSize="8pt", colCount=6,
-                                   brush=pg.mkBrush(255, 255, 255, 200))
+        self.vb.enableAutoRange(x=False, y=False)     # every score in view, 0 and 1 always (set_scores)
+        self.vb.setYRange(*score_range({}), padding=0)
         self.cursor = make_cursor(cursor_dragged, cursor_released)
         self.span = make_span()
         sp.addItem(self.span, ignoreBounds=True)
@@ -154,6 +183,7 @@ class ScoreRow:
             act.setEnabled(has_worst)
             act.triggered.connect(lambda _=False, n=name: self.goto_worst(n))
         self.low_item.setData(*low_evidence_points(t_s, clean, low))
+        self.vb.setYRange(*score_range(clean, lower_is_better), padding=0)
         self.low_bands = low_evidence_bands(t_s, no_evidence_windows(clean, low))
         for band in self.low_bands:
             self.plot.addItem(band, ignoreBounds=True)
@@ -219,6 +249,7 @@ class ScoreRow:
             alpha = STALE_ALPHA if self.stale else 90 if name in hidden else 255
             item.setPen(pg.mkPen(*self.color(name), alpha, width=width))
             item.setZValue(5 if name == sel else 0)
+        self.legend.setText(legend_html([(n, self.color(n), n in hidden) for n in self.items]))
 
     def set_stale(self, stale: bool, text: str = STALE_TEXT) -> None:
         """Mark the scores shown as stale (dimmed, with ``text`` in the corner) or fresh."""

@@ -14,9 +14,13 @@ from evpose.core.data.camera import CameraModel
 from evpose.core.data.geometry import apply_T
 from evpose.core.data.objects import BBOX_EDGES
 
-#: Qualitative colours (RGB) assigned to objects by their index in the scene.
-PALETTE = ((230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180), (70, 240, 240),
-           (240, 50, 230), (210, 245, 60), (250, 190, 212), (0, 128, 128), (170, 110, 40), (128, 0, 0))
+#: Qualitative colours (RGB) assigned to objects by their index in the scene. None is red, blue or magenta:
+#: those are the events' colours (ON red, OFF blue, both magenta, :data:`EVENT_COLORS`), and objects drawn
+#: in them blend into the events. Hues from orange through green to teal, of different lightness.
+PALETTE = ((0, 158, 115), (230, 140, 0), (0, 140, 170), (140, 140, 0), (90, 190, 40), (150, 85, 30),
+           (0, 95, 70), (200, 170, 60))
+#: The event images' colours (:mod:`evpose.core.label.event_frames.display`): ON, OFF, both in one pixel.
+EVENT_COLORS = {"ON": (255, 0, 0), "OFF": (0, 0, 255), "both": (255, 0, 255)}
 AXIS_COLORS = ((230, 40, 40), (40, 200, 40), (40, 90, 240))  # x red, y green, z blue
 
 
@@ -96,3 +100,35 @@ def compose_masks_rgba(label_map: np.ndarray, colors: list[tuple[int, int, int]]
         if visible is None or visible[k]:
             lut[k + 1] = (*c, int(round(255 * alpha)))
     return lut[label_map.astype(np.intp) + 1]
+
+
+def drawn_objects(names, hidden, selected: str | None, selected_only: bool) -> list[bool]:
+    """Which objects the frame draws: those not hidden, and with ``selected_only`` only the selected one
+    (all of them when none is selected)."""
+    only = selected if selected_only and selected in names else None
+    return [n not in hidden and (only is None or n == only) for n in names]
+
+
+#: The background an event representation is drawn on (:mod:`evpose.core.label.represent`, the app's default).
+REPRESENTATION_BACKGROUND = {"three_channel": "black"}
+
+
+def adjust_contrast(rgb: np.ndarray, contrast: float, background: str = "white") -> np.ndarray:
+    """The event image with its faint marks strengthened: a gamma of ``1 / contrast`` on the ink (the
+    distance of each channel from the background), so the background and saturated marks stay and faint
+    ones darken (white background) or brighten (black). ``contrast`` 1 returns ``rgb`` itself.
+
+    Parameters
+    ----------
+    rgb : (H, W, 3) uint8
+    contrast : float >= 1 (below 1 weakens)
+    background : "white" or "black"
+    """
+    if contrast <= 0:
+        raise ValueError(f"contrast must be positive, got {contrast}")
+    if contrast == 1.0:
+        return rgb
+    lut = np.rint(255.0 * (np.arange(256) / 255.0) ** (1.0 / contrast)).astype(np.uint8)
+    if background == "white":
+        return 255 - lut[255 - rgb]
+    return lut[rgb]

@@ -31,7 +31,9 @@ from evpose.core.label.overlay import (
     object_color,
 )
 from evpose.core.session.overlay_cache import OverlayCache, overlay_key
+from evpose.core.session.spacetime_band import MergedFieldCache, events_band
 from evpose.core.session.spacetime_slices import SLICE_REQUEST, SliceCache, slice_key, slice_times
+from evpose.core.session.spacetime_surface import SurfaceCache, tubes_and_surfaces
 from evpose.core.session.view_state import ViewState
 
 
@@ -53,7 +55,11 @@ class FrameData:
 
 @dataclass
 class SpaceTimeData:
-    """Events around the current time as an (x, y, t) cloud, and the objects' silhouette tubes."""
+    """Events around the current time as an (x, y, t) cloud, and the objects' silhouette tubes.
+
+    ``edge_px`` and ``nearest`` (None when not computed) say how far each event is from the nearest shown
+    silhouette at its own time (px; inf: none within reach) and whose it is (index into ``object_colors``, the
+    scene's objects in order; -1: none): the view draws the events within its band in their object's colour."""
 
     t_center_us: int
     points: np.ndarray        # (N, 3) float32: x px, y px, t ms relative to t_center
@@ -61,6 +67,10 @@ class SpaceTimeData:
     n_total: int              # events in the span before decimation
     tubes: list[tuple[str, tuple[int, int, int], list[np.ndarray]]]  # (name, colour, polylines (M, 3))
     span_us: int = 0
+    edge_px: np.ndarray | None = None    # (N,) float32
+    nearest: np.ndarray | None = None    # (N,) int8
+    object_colors: tuple = ()            # (r, g, b) 0-255 per object index
+    surfaces: list = field(default_factory=list)  # (name, colour, vertices (V, 3) float32, triangles (F, 3) uint32)
 
 
 @dataclass(frozen=True)
@@ -115,6 +125,9 @@ class FrameComputer:
         self._motion = None        # (store, t_us, direction, window_us) of the last request, for prefetch
         #: silhouette slices of the space-time view by time and poses (byte-bounded: ``slice_cache.nbytes``)
         self.slice_cache = SliceCache()
+        #: per slice, the objects' merged signed fields (events' band) and the joined contours (tube surfaces)
+        self.field_cache = MergedFieldCache()
+        self.surface_cache = SurfaceCache()
         self._slice_annotator: Annotator | None = None
         self._slice_scene_key = None
         self._last_spacetime = None   # the last space-time request, for prefetch_spacetime
@@ -297,6 +310,8 @@ class FrameComputer:
             self._slice_annotator = Annotator(scene, SLICE_REQUEST)
             self._slice_scene_key = key
             self.slice_cache.clear()
+            self.field_cache.clear()
+            self.surface_cache = SurfaceCache()
         self._slice_annotator.scene = scene
         return self._slice_annotator
 
@@ -324,27 +339,20 @@ class FrameComputer:
         pts[:, 0] = ev.x
         pts[:, 1] = ev.y
         pts[:, 2] = (ev.t - view.t_us).astype(np.float32) * 1e-3
-        tubes = []
         times = slice_times(t0, span, view.spacetime_slices, view.grid_origin_us)
         ann = self._slices_annotator(scene)
         T_co, T_bc, valid = ann.poses(times)
-        per_obj: dict[str, list[np.ndarray]] = {name: [] for name in scene.object_names}
+        slices = []
         for i, t in enumerate(times):
-            if not valid[i]:
-                continue
-            for name, in_view, contours in self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i]):
-                if name in view.hidden or not in_view:
-                    continue
-                for c in contours:
-                    poly = np.empty((len(c), 3), np.float32)
-                    poly[:, :2] = c
-                    poly[:, 2] = (t - view.t_us) * 1e-3
-                    per_obj[name].append(poly)
+            if valid[i]:
+                slices.append((int(t), self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])))
             yield None
-        for k, name in enumerate(scene.object_names):
-            if per_obj[name]:
-                tubes.append((name, object_color(k), per_obj[name]))
-        return SpaceTimeData(int(view.t_us), pts, ev.p.copy(), n, tubes, span)
+        names = scene.object_names
+        colors = tuple(object_color(k) for k in range(len(names)))
+        tubes, surfaces = tubes_and_surfaces(slices, names, view.hidden, colors, view.t_us, self.surface_cache)
+        edge_px, nearest = events_band(ev, slices, names, view.hidden, scene.camera.width, scene.camera.height,
+                                       self.field_cache)
+        return SpaceTimeData(int(view.t_us), pts, ev.p.copy(), n, tubes, span, edge_px, nearest, colors, surfaces)
 
     def prefetch_spacetime(self, should_stop=lambda: False) -> int:
         """Compute into :attr:`slice_cache` the silhouette slices that the span of the last space-time request
@@ -371,7 +379,9 @@ class FrameComputer:
             if should_stop():
                 break
             if valid[i] and slice_key(int(t), T_co[i]) not in self.slice_cache:
-                self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])
+                value = self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])
+                self.field_cache.merged(value, scene.object_names, view.hidden, scene.camera.height,
+                                        scene.camera.width)
                 n += 1
         return n
 

@@ -13,6 +13,8 @@ visibility, selection                       ``Change("objects", {"hidden"} / {"s
 :meth:`~Session.set_preview` (on or off)    ``Change("view", {"preview"})``
 any document edit, undo, redo, restore,     ``Change("document", {"clock", "hand_eye",
 reload or merge of another program's save   "reviews", "object:<name>" it set})``
+each move of a drag on the frame            ``Change("document", {"object:<name>"})``; the
+(:meth:`~Session.drag_object`)              whole drag is one undo step
 save, no-op edit, unchanged view            nothing
 ==========================================  =============================================
 
@@ -43,12 +45,12 @@ from evpose.core.document.corrections_merge import MergeResult, merge
 from evpose.core.document.estimates import apply_clock_estimate, apply_pose_estimate
 from evpose.core.document.commands import Group, SetValue
 from evpose.core.document.history import History
-from evpose.core.document.pose_edit import hand_eye_step, nudge_step
+from evpose.core.document.pose_edit import drag_step, hand_eye_step, nudge_step
 from evpose.core.document.review import insert_mark, mark_state, stale_reasons
 from evpose.core.label import represent
 from evpose.core.label.overlay import object_color
 from evpose.core.session.frames import FrameRequest
-from evpose.core.session.view_state import OVERLAY_KINDS, ViewState
+from evpose.core.session.view_state import OVERLAY_KINDS, CountGrid, ViewState
 from evpose.core.signals import Change, Signal
 
 _SERIALS = itertools.count(1)
@@ -68,6 +70,9 @@ class Session:
         self.preview: Corrections | None = None
         #: One :class:`~evpose.core.signals.Change` per action (see the module docstring).
         self.changed: Signal[Change] = Signal(Change)
+        #: The object being dragged in the frame view (:meth:`begin_drag`): (name, its correction and pose
+        #: at the start, the camera pose of the frame, the history's merge timeout), or None.
+        self._drag: tuple | None = None
         self.history.changed.connect(self._history_changed)
 
     @classmethod
@@ -125,12 +130,29 @@ class Session:
         return int(t_bins[k] + self.view.window_us // 2)
 
     def step_windows(self, n: int) -> None:
+        grid = self.view.count_grid
+        if grid is not None:                 # windows of N events: to the centre of the n-th next one
+            self.set_time(grid.step(self.view.t_us, n))
+            return
         self.set_time(self.view.t_us + n * self.view.window_us)
 
     def set_window_us(self, window_us: int) -> None:
+        """Time windows of ``window_us`` (leaves windows of a number of events)."""
         if window_us <= 0:
             raise ValueError("window length must be positive")
-        self._set_view(window_us=int(window_us))
+        self._set_view(window_us=int(window_us), count_grid=None)
+
+    def set_window_events(self, n_events: int) -> None:
+        """Windows of ``n_events`` events each (the export's ``--window-events`` tiling, from the first
+        event); ``window_us`` becomes their average length. 0 returns to time windows of that length."""
+        n = int(n_events)
+        if n < 0:
+            raise ValueError("events per window must be positive")
+        if n == 0:
+            self._set_view(count_grid=None)
+            return
+        grid = CountGrid(self.scene.events, n)
+        self._set_view(count_grid=grid, window_us=grid.mean_window_us())
 
     def set_representation(self, name: str) -> None:
         if name not in represent.REPRESENTATIONS:
@@ -184,6 +206,47 @@ class Session:
                           pivot_obj_m=model.bbox_center_m)
         new = step @ self.scene.corrections.object_delta(name)
         self.history.set(("object", name), new, text=f"move {name}", mergeable=mergeable)
+
+    # ------------------------------------------------------------------ direct manipulation (frame view)
+    def begin_drag(self, name: str) -> bool:
+        """Start dragging object ``name`` on the frame (selecting it). Each :meth:`drag_object` until
+        :meth:`end_drag` sets its pose from the pose at this moment, and all of them are one undo step
+        (they merge, however long the drag pauses). False when the frame has no camera pose."""
+        if name not in self.object_names:
+            raise KeyError(name)
+        self.end_drag()
+        T_bc, valid = self.scene.T_base_cam(np.array([self.view.window().t_label_us]))
+        if not valid[0]:
+            return False
+        self.select(name)
+        self._drag = (name, self.scene.corrections.object_delta(name), self.scene.T_base_obj(name), T_bc[0],
+                      self.history.merge_timeout_s)
+        self.history.merge_timeout_s = float("inf")
+        self.history.break_merge()
+        return True
+
+    def drag_object(self, uv_from, uv_to, mode: str = "move") -> None:
+        """Set the dragged object's pose for a drag from pixel ``uv_from`` to ``uv_to`` (raw image pixels,
+        from the start of the drag): ``mode`` "move" (parallel to the image at the object's depth), "spin"
+        (about the line of sight through its centre) or "tilt"; see
+        :func:`evpose.core.document.pose_edit.drag_step`."""
+        if self._drag is None:
+            return
+        name, delta0, T_bo0, T_bc, _ = self._drag
+        step = drag_step(mode, uv_from, uv_to, self.scene.camera, T_bo0, T_bc, self.scene.model(name).bbox_center_m)
+        self.history.set(("object", name), step @ delta0, text=f"drag {name}", mergeable=True)
+
+    def end_drag(self) -> None:
+        """End the drag: the next edit is a new undo step."""
+        if self._drag is not None:
+            self.history.merge_timeout_s = self._drag[4]
+            self._drag = None
+            self.history.break_merge()
+
+    @property
+    def dragging(self) -> str | None:
+        """The object being dragged, or None."""
+        return None if self._drag is None else self._drag[0]
 
     def nudge_hand_eye(self, rot_deg=(0, 0, 0), trans_mm=(0, 0, 0), mergeable: bool = True) -> None:
         new = self.scene.corrections.hand_eye_delta @ hand_eye_step(rot_deg, trans_mm)

@@ -3,8 +3,9 @@ byte-bounded cache that lets a step of the span reuse the slices it still covers
 
 A slice is the objects' visible silhouettes at one time: one z-buffered render of the objects in view
 (:meth:`~evpose.core.label.annotate.Annotator.annotate` with a request for the label map only: no
-keypoints, depth or occlusion tests) and each object's contours (:func:`~evpose.core.label.overlay.mask_contours`
-of its pixels in the label map, the frame view's visible mask). Slices sit on a fixed grid counted from the
+keypoints, depth or occlusion tests), each object's contours (:func:`~evpose.core.label.overlay.mask_contours`
+of its pixels in the label map, the frame view's visible mask) and its signed distance field
+(:func:`~evpose.core.session.spacetime_band.signed_field`, for the events' distance to the silhouettes). Slices sit on a fixed grid counted from the
 window grid's origin (:func:`slice_times`), so when the span moves by a window most of them keep their time
 and, with unchanged poses, their cache key.
 """
@@ -18,11 +19,13 @@ from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 from evpose.core.label.overlay import mask_contours
 from evpose.core.label.windows import Window
+from evpose.core.session.spacetime_band import signed_field
 
 #: At most this many slices are kept (eight spans of the default twelve slices).
 SLICE_CACHE_SLICES = 96
-#: And at most this many bytes of contours and keys (a slice of five YCB objects holds 2-10 kB).
-SLICE_CACHE_BYTES = 4 << 20
+#: And at most this many bytes of contours, fields and keys (a slice of five YCB objects on a DAVIS346 holds
+#: 2-10 kB of contours and 50-150 kB of int8 signed fields).
+SLICE_CACHE_BYTES = 16 << 20
 #: Bytes counted per cached slice and per object on top of the arrays (dict entry, tuples, names).
 _ENTRY_OVERHEAD_B, _OBJECT_OVERHEAD_B = 200, 120
 
@@ -47,21 +50,24 @@ def slice_key(t_us: int, T_cam_obj: np.ndarray) -> tuple:
 
 
 def compute_slice(ann: Annotator, t_us: int, T_cam_obj: np.ndarray, T_base_cam: np.ndarray) -> list:
-    """``[(name, in_view, contours)]`` of every object at ``t_us`` with these poses: contours (list of (M, 2)
-    int32 pixel polylines) of the object's visible pixels in one z-buffered render; ``[]`` out of view."""
+    """``[(name, in_view, contours, field)]`` of every object at ``t_us`` with these poses: contours (list of
+    (M, 2) pixel polylines) of the object's visible pixels in one z-buffered render (``[]`` out of view) and their
+    :class:`~evpose.core.session.spacetime_band.SignedField` (None when no pixel is visible)."""
     lab = ann.annotate(Window(-1, int(t_us), int(t_us) + 1, int(t_us)), pose=(T_cam_obj, T_base_cam, True))
     out = []
     for k, o in enumerate(lab.objects):
-        contours = mask_contours(lab.label_map == k) if o.in_view and lab.label_map is not None else []
-        out.append((o.name, bool(o.in_view), contours))
+        mask = lab.label_map == k if o.in_view and lab.label_map is not None else None
+        contours = mask_contours(mask) if mask is not None else []
+        field = signed_field(mask) if contours else None
+        out.append((o.name, bool(o.in_view), contours, field))
     return out
 
 
 def slice_nbytes(key: tuple, value: list) -> int:
-    """Bytes a cached slice holds: the key's pose bytes, the contour arrays and a fixed overhead."""
+    """Bytes a cached slice holds: the key's pose bytes, the contour and field arrays and a fixed overhead."""
     n = _ENTRY_OVERHEAD_B + len(key[1])
-    for _name, _in_view, contours in value:
-        n += _OBJECT_OVERHEAD_B + sum(int(c.nbytes) for c in contours)
+    for _name, _in_view, contours, field in value:
+        n += _OBJECT_OVERHEAD_B + sum(int(c.nbytes) for c in contours) + (field.nbytes if field is not None else 0)
     return n
 
 

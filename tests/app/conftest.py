@@ -21,3 +21,21 @@ def window(qtbot, tmp_path, monkeypatch):
     yield w
     w.auto_answer["Unsaved corrections"] = 0x00800000  # Discard
     w.close()
+
+
+@pytest.fixture(scope="session")
+def demo_scene_dir(tmp_path_factory):
+    """``evpose demo``'s scene (35 ms clock error, every pose 5 mm / 3 deg off), built once per test session
+    (about 1 min); never modify it (copy it)."""
+    from evpose.app.cli.synth import ensure_demo_scene
+
+    return ensure_demo_scene(tmp_path_factory.mktemp("demo") / "demo_scene", quiet=True)
+
+
+@pytest.fixture
+def demo_copy(demo_scene_dir, tmp_path):
+    import shutil
+
+    dst = tmp_path / "demo"
+    shutil.copytree(demo_scene_dir, dst)
+    return dst

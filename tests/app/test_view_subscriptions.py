@@ -7,7 +7,9 @@ import pytest
 import shiboken6
 from PySide6 import QtCore
 
-VIEWS = ("panel", "objects", "reviews", "timeline", "spacetime")
+VIEWS = ("panel", "objects", "reviews", "timeline", "spacetime", "kymograph", "frame_view")
+#: views that subscribe and are not attributes of the window: the frame view's toolbar
+N_SUBSCRIBERS = len(VIEWS) + 1 + 1                          # the views, the toolbar and the window
 
 
 @pytest.fixture
@@ -15,13 +17,17 @@ def calls(monkeypatch):
     """``(view class, change)`` of every call of a view's session slot (patched on the classes)."""
     from evpose.app.main_window import MainWindow
     from evpose.widgets.correction_panel import CorrectionPanel
+    from evpose.widgets.frame_toolbar import FrameToolbar
+    from evpose.widgets.frame_view import FrameView
+    from evpose.widgets.kymograph_view import KymographView
     from evpose.widgets.object_list import ObjectList
     from evpose.widgets.review_panel import ReviewPanel
     from evpose.widgets.spacetime_view import SpaceTimeView
     from evpose.widgets.timeline import Timeline
 
     seen = []
-    for cls in (CorrectionPanel, ObjectList, ReviewPanel, SpaceTimeView, Timeline, MainWindow):
+    for cls in (CorrectionPanel, ObjectList, ReviewPanel, SpaceTimeView, KymographView, Timeline, FrameView,
+                FrameToolbar, MainWindow):
         original = cls._on_session
 
         def spy(self, change, _original=original, _name=cls.__name__):
@@ -41,16 +47,16 @@ def deleted_and_collected(qtbot) -> None:
 
 def test_one_edit_reaches_each_view_once(qtbot, window, scene_copy, calls):
     s = window.controller.open_scene(scene_copy)
-    assert len(s.changed) == len(VIEWS) + 1                 # the five views and the window
+    assert len(s.changed) == N_SUBSCRIBERS
     assert len(s.history.changed) == 2                      # the session and the undo bridge
     calls.clear()
     s.set_offset_correction_us(1234)
     names = sorted(name for name, _ in calls)
-    assert names == sorted(["CorrectionPanel", "ObjectList", "ReviewPanel", "SpaceTimeView", "Timeline",
-                            "MainWindow"])
+    assert names == sorted(["CorrectionPanel", "ObjectList", "ReviewPanel", "SpaceTimeView", "KymographView",
+                            "Timeline", "FrameView", "FrameToolbar", "MainWindow"])
     calls.clear()
     s.set_time(s.time_range[0] + 200_000)
-    assert len(calls) == len(VIEWS) + 1
+    assert len(calls) == N_SUBSCRIBERS
 
 
 @pytest.mark.parametrize("how", ["replaced", "closed"])
@@ -60,7 +66,7 @@ def test_old_views_are_disconnected_not_called_and_freed(qtbot, window, scene_co
     refs["undo_bridge"] = weakref.ref(window.undo_bridge)
     if how == "replaced":
         new = window.controller.open_scene(scene_copy)
-        assert new is not old and len(new.changed) == len(VIEWS) + 1
+        assert new is not old and len(new.changed) == N_SUBSCRIBERS
     else:
         window.close()
     deleted_and_collected(qtbot)

@@ -15,7 +15,17 @@ from scipy.spatial.transform import Rotation
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.geometry import apply_T, inv_T, make_T
 from evpose.core.data.objects import BBOX_EDGES, box_model
-from evpose.core.label.overlay import axes_segments, box_segments, compose_masks_rgba, mask_contours
+from evpose.core.label.overlay import (
+    EVENT_COLORS,
+    PALETTE,
+    adjust_contrast,
+    axes_segments,
+    box_segments,
+    compose_masks_rgba,
+    drawn_objects,
+    mask_contours,
+    object_color,
+)
 from evpose.core.label.raster import Rasterizer
 
 #: a rotation whose columns are all different from +-e_x, +-e_y, +-e_z and from each other's
@@ -177,3 +187,57 @@ def test_frame_overlays_line_up_with_the_projection(tiny_frame):
         border = ((padded[v, u + 1] != k) | (padded[v + 2, u + 1] != k) | (padded[v + 1, u] != k)
                   | (padded[v + 1, u + 2] != k))
         assert border.all(), name                                  # on its border
+
+
+# ---------------------------------------------------------------------- display (issue 16)
+def _lab(rgb) -> np.ndarray:
+    """CIE L*a*b* of an sRGB colour (OpenCV's 8-bit Lab rescaled to L 0..100, a and b centred)."""
+    lab = cv2.cvtColor(np.uint8([[rgb]]), cv2.COLOR_RGB2LAB)[0, 0].astype(float)
+    return lab * [100 / 255, 1, 1] - [0, 128, 128]
+
+
+def _hue_deg(rgb) -> float:
+    import colorsys
+
+    return 360.0 * colorsys.rgb_to_hsv(*(c / 255 for c in rgb))[0]
+
+
+def test_object_colours_are_distinct_from_the_event_colours():
+    """Red and blue objects blended into the ON / OFF events (issue 16): no object colour is near red, blue or
+    magenta in hue, nor within a large colour difference of them, including their pale tints on white."""
+    events = list(EVENT_COLORS.values())
+    assert (255, 0, 0) in events and (0, 0, 255) in events
+    tints = [tuple(int(255 - 0.4 * (255 - c)) for c in e) for e in events]     # 40 % ink on white
+    for k in range(len(PALETTE)):
+        c = object_color(k)
+        for e in events:
+            d = abs(_hue_deg(c) - _hue_deg(e)) % 360
+            assert min(d, 360 - d) >= 25, (c, e)
+            assert np.linalg.norm(_lab(c) - _lab(e)) > 50, (c, e)
+        for t in tints:
+            assert np.linalg.norm(_lab(c) - _lab(t)) > 40, (c, t)
+    # and from each other (the first five: a 5-object scene)
+    for a in range(5):
+        for b in range(a):
+            assert np.linalg.norm(_lab(object_color(a)) - _lab(object_color(b))) > 25
+
+
+def test_contrast_strengthens_faint_ink_and_keeps_background_and_saturation():
+    img = np.array([[[255, 255, 255], [230, 230, 230], [255, 200, 200], [0, 0, 0], [255, 0, 0]]], np.uint8)
+    assert adjust_contrast(img, 1.0) is img
+    out = adjust_contrast(img, 3.0)
+    np.testing.assert_array_equal(out[0, [0, 3, 4]], img[0, [0, 3, 4]])     # white, black, pure red stay
+    assert out[0, 1, 0] < 200                                                # faint grey darkens a lot
+    assert out[0, 2, 0] == 255 and out[0, 2, 1] < 150                        # pale red turns redder
+    dark = adjust_contrast(np.array([[[20, 0, 255]]], np.uint8), 3.0, background="black")
+    assert dark[0, 0, 0] > 100 and dark[0, 0, 1] == 0 and dark[0, 0, 2] == 255
+    with pytest.raises(ValueError):
+        adjust_contrast(img, 0.0)
+
+
+def test_drawn_objects_for_hidden_and_selected_only():
+    names = ["a", "b", "c"]
+    assert drawn_objects(names, frozenset({"b"}), "a", False) == [True, False, True]
+    assert drawn_objects(names, frozenset(), "c", True) == [False, False, True]
+    assert drawn_objects(names, frozenset({"c"}), "c", True) == [False, False, False]
+    assert drawn_objects(names, frozenset(), None, True) == [True, True, True]      # nothing selected: all

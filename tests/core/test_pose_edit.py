@@ -12,7 +12,18 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from evpose.core.data.geometry import apply_T, make_T, pose_error
-from evpose.core.document.pose_edit import FRAMES, delta_components, frame_rotation, hand_eye_step, nudge_step
+from evpose.core.data.camera import CameraModel
+from evpose.core.document.pose_edit import (
+    FRAMES,
+    delta_components,
+    drag_step,
+    frame_rotation,
+    hand_eye_step,
+    image_plane_shift,
+    nudge_step,
+    pose_change,
+    swept_angle_deg,
+)
 
 R_BASE_OBJ = Rotation.from_rotvec([0.5, -0.9, 0.4]).as_matrix()
 R_BASE_CAM = Rotation.from_rotvec([-1.1, 0.3, 0.8]).as_matrix()
@@ -140,3 +151,82 @@ def test_session_translation_nudge_in_each_frame(offcentre_session, frame):
     T1 = s.scene.T_base_obj("box")
     np.testing.assert_allclose(T1[:3, 3] - T0[:3, 3], 4e-3 * R[frame][:, 2], atol=1e-12)
     np.testing.assert_allclose(T1[:3, :3], T0[:3, :3], atol=1e-12)
+
+
+# ---------------------------------------------------------------------- the pose readout (issue 16)
+@pytest.mark.parametrize("frame", FRAMES)
+def test_pose_change_of_a_rotation_about_the_centre_is_0_mm(frame):
+    """The readout is the displacement of the box centre and the rotation angle (what the Refine dialog
+    reports): a rotation about the centre reads 0 mm, where the delta's own translation holds a lever arm."""
+    dT = nudge_step("camera", (3.0, -4.0, 0.0), (0, 0, 0), T_BASE_OBJ, T_BASE_CAM, PIVOT_OBJ_M)
+    assert np.linalg.norm(dT[:3, 3]) > 5e-3                     # the lever arm the old readout showed
+    angle, rv, moved = pose_change(dT, T_BASE_OBJ, PIVOT_OBJ_M, frame, T_BASE_CAM)
+    assert angle == pytest.approx(5.0, abs=1e-9)
+    np.testing.assert_allclose(moved, 0.0, atol=1e-9)
+    R_f = AXES_IN_BASE[frame]
+    np.testing.assert_allclose(rv, R_f.T @ R_BASE_CAM @ np.array([3.0, -4.0, 0.0]), atol=1e-9)
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+def test_pose_change_gives_the_centre_displacement_in_the_chosen_axes(frame):
+    """A 10 mm move then a 5 degree turn about the centre still reads 10 mm, with components along the chosen
+    frame's axes (object: the corrected pose's axes)."""
+    move = nudge_step(frame, (0, 0, 0), (6.0, 0.0, -8.0), T_BASE_OBJ, T_BASE_CAM, PIVOT_OBJ_M)
+    T1 = move @ T_BASE_OBJ
+    turn = nudge_step("camera", (0, 5.0, 0), (0, 0, 0), T1, T_BASE_CAM, PIVOT_OBJ_M)
+    dT = turn @ move
+    angle, _, moved = pose_change(dT, T_BASE_OBJ, PIVOT_OBJ_M, frame, T_BASE_CAM)
+    assert angle == pytest.approx(5.0, abs=1e-9)
+    assert np.linalg.norm(moved) == pytest.approx(10.0, abs=1e-9)
+    if frame != "object":            # object axes turned with the object: the components turned too
+        np.testing.assert_allclose(moved, [6.0, 0.0, -8.0], atol=1e-9)
+
+
+# ---------------------------------------------------------------------- drags on the image
+CAMERA = CameraModel([[292.52, 0.0, 172.61], [0.0, 293.19, 130.125], [0.0, 0.0, 1.0]],
+                     [-0.362, 0.115, 0.0009576, 0.00000455, 0.130])
+
+
+def _centre_cam(T_base_obj):
+    return apply_T(np.linalg.inv(T_BASE_CAM) @ T_base_obj, PIVOT_OBJ_M[None])[0]
+
+
+def _object_in_front():
+    """T_base_obj with the box centre 0.5 m in front of the camera, left of and above the image centre."""
+    T_cam_obj = make_T(R_BASE_OBJ, np.array([-0.08, -0.05, 0.5]) - R_BASE_OBJ @ PIVOT_OBJ_M)
+    return T_BASE_CAM @ T_cam_obj
+
+
+def test_a_move_drag_carries_the_centre_under_the_cursor_at_its_depth():
+    T = _object_in_front()
+    c0 = _centre_cam(T)
+    uv0, _ = CAMERA.project(c0[None])
+    uv1 = uv0[0] + [23.0, -11.0]
+    S = drag_step("move", uv0[0], uv1, CAMERA, T, T_BASE_CAM, PIVOT_OBJ_M)
+    c1 = _centre_cam(S @ T)
+    assert c1[2] == pytest.approx(c0[2], abs=1e-12)               # parallel to the image: same depth
+    np.testing.assert_allclose(CAMERA.project(c1[None])[0][0], uv1, atol=1e-6)   # under the cursor (distorted)
+    np.testing.assert_allclose((S @ T)[:3, :3], T[:3, :3], atol=1e-12)
+    # a shift is a shift wherever it starts: through the lens, 10 px near the border is not 10 px at the centre
+    d = image_plane_shift(CAMERA, c0, (20.0, 20.0), (30.0, 20.0))
+    assert d[2] == 0 and d[0] > 0 and abs(d[1]) < abs(d[0])
+
+
+def test_spin_and_tilt_drags_turn_about_the_centre():
+    T = _object_in_front()
+    c0 = _centre_cam(T)
+    uvc = CAMERA.project(c0[None])[0][0]
+    # a quarter turn clockwise on screen (x right, y down) about the centre's image: +90 degrees about camera z
+    assert swept_angle_deg(uvc, uvc + [10, 0], uvc + [0, 10]) == pytest.approx(90.0)
+    S = drag_step("spin", uvc + [10, 0], uvc + [0, 10], CAMERA, T, T_BASE_CAM, PIVOT_OBJ_M)
+    np.testing.assert_allclose(_centre_cam(S @ T), c0, atol=1e-12)
+    R_cam = T_BASE_CAM[:3, :3].T @ S[:3, :3] @ T_BASE_CAM[:3, :3]       # the step in camera axes
+    np.testing.assert_allclose(R_cam, Rotation.from_euler("z", 90, degrees=True).as_matrix(), atol=1e-9)
+    # tilt: a drag to the right turns the side facing the camera to the right (about camera -y)
+    S = drag_step("tilt", (100, 100), (110, 100), CAMERA, T, T_BASE_CAM, PIVOT_OBJ_M)
+    np.testing.assert_allclose(_centre_cam(S @ T), c0, atol=1e-12)
+    R_cam = T_BASE_CAM[:3, :3].T @ S[:3, :3] @ T_BASE_CAM[:3, :3]
+    front = R_cam @ np.array([0, 0, -0.05])                               # the point facing the camera
+    assert front[0] > 0.003
+    with pytest.raises(ValueError, match="drag mode"):
+        drag_step("zoom", (0, 0), (1, 1), CAMERA, T, T_BASE_CAM, PIVOT_OBJ_M)

@@ -336,3 +336,102 @@ def test_own_save_is_not_an_external_change_and_save_merges_others(session, scen
     assert not session.dirty and "merge another program's change" in session.history.undo_text
     disk = Corrections.load(scene_copy / "corrections.json")
     assert disk.skew_ppm == 1.0 and disk.offset_us == 250 and not np.array_equal(disk.hand_eye_delta, np.eye(4))
+
+
+# ---------------------------------------------------------------------------- direct manipulation (issue 16)
+def _centre_uv(session, name):
+    """The image point of an object's box centre in the current window (raw pixels)."""
+    from evpose.core.data.geometry import apply_T
+
+    T, _ = session.scene.T_cam_obj([session.view.window().t_label_us], [name])
+    c = apply_T(T[0, 0], session.scene.model(name).bbox_center_m[None])
+    return session.scene.camera.project(c)[0][0]
+
+
+def test_a_drag_is_one_undo_step_however_long_it_pauses(session):
+    session.set_time(session.time_range[0] + 300_000)
+    now = [0.0]
+    session.history._clock = lambda: now[0]
+    session.nudge_object("box", "camera", trans_mm=(1, 0, 0))      # an earlier nudge: its own step
+    rec = Recorder(session)
+    assert session.begin_drag("box") and session.dragging == "box"
+    assert session.view.selected == "box"
+    uv = _centre_uv(session, "box")
+    for k in range(1, 6):
+        now[0] += 5.0                                                # far beyond the merge timeout
+        session.drag_object(uv, uv + [4.0 * k, -2.0 * k], "move")
+    session.end_drag()
+    assert session.dragging is None and session.history.merge_timeout_s == 1.5
+    assert len(session.history) == 2 and session.history.undo_text == "drag box"
+    assert rec.take()[1] == [doc("object:box")] * 5                  # the views follow every move
+    np.testing.assert_allclose(_centre_uv(session, "box"), uv + [20.0, -10.0], atol=1e-6)   # under the cursor
+    session.nudge_object("box", "camera", trans_mm=(0, 1, 0))      # after the drag: a new step
+    assert len(session.history) == 3
+    session.history.undo()
+    session.history.undo()
+    np.testing.assert_allclose(_centre_uv(session, "box"), uv, atol=1e-9)
+    # a drag back to where it started records nothing
+    session.begin_drag("box")
+    session.drag_object(uv, uv + [5.0, 0.0])
+    session.drag_object(uv, uv)
+    session.end_drag()
+    assert len(session.history) == 2 and session.history.can_redo is False
+
+
+def test_windows_of_n_events_are_the_exports_tiling(session):
+    from evpose.core.label.windows import count_windows
+
+    store = session.scene.events
+    n = 5000
+    tiling = count_windows(store, n)
+    session.set_time(session.time_range[0] + 300_000)
+    rec = Recorder(session)
+    session.set_window_events(n)
+    assert rec.take()[0][0].fields >= {"count_grid"} and session.view.window_events == n
+    w = session.view.window()
+    k = w.index
+    assert (w.t0_us, w.t1_us, w.i0, w.i1) == (tiling[k].t0_us, tiling[k].t1_us, tiling[k].i0, tiling[k].i1)
+    assert w.t0_us <= session.view.t_us < w.t1_us and w.n_events == n
+    session.step_windows(1)
+    assert session.view.window().index == k + 1 and session.view.t_us == tiling[k + 1].t_label_us
+    session.step_windows(-3)
+    assert session.view.window().index == k - 2
+    session.step_windows(10**6)
+    assert session.view.window().index == len(tiling) - 1
+    # the average length stands for the window where one number is needed
+    assert session.view.window_us == pytest.approx((store.t_last_us - store.t_first_us) * n / store.n_events, rel=1e-3)
+    session.set_window_us(4000)
+    assert session.view.window_events == 0 and session.view.window().t1_us - session.view.window().t0_us == 4000
+    session.set_window_events(n)
+    session.set_window_events(0)
+    assert session.view.count_grid is None
+    with pytest.raises(ValueError):
+        session.set_window_events(-1)
+
+
+def test_stepping_windows_of_n_events_never_stalls_on_equal_timestamps():
+    """Windows whose events all share one timestamp (a burst of 10^5 events in 1 µs on a dense recording): their
+    label time is that timestamp, where the window before also ends; stepping must still move on."""
+    from evpose.core.session.view_state import CountGrid
+
+    class Store:                        # event times: 0..9, then six events at 10, then 11..19
+        t = np.array(list(range(10)) + [10] * 6 + list(range(11, 20)), dtype=np.int64)
+        n_events = len(t)
+        t_first_us, t_last_us = 0, 19
+
+        def index_of(self, t_us):
+            return int(np.searchsorted(self.t, t_us))
+
+        def read(self, i0, i1):
+            return type("Ev", (), {"t": self.t[i0:i1]})()
+
+    grid = CountGrid(Store(), 3)
+    t, seen = int(grid.window(0).t_label_us), []
+    for _ in range(12):
+        t_next = grid.step(t, 1)
+        if t_next == t:
+            break
+        seen.append(t_next)
+        t = t_next
+    assert seen == sorted(seen) and seen[-1] == grid.window(grid.n_windows - 1).t_label_us
+    assert grid.step(t, -1) < t

@@ -84,16 +84,17 @@ def test_slice_contours_are_the_frame_views_visible_mask_contours(session):
     assert valid[0]
     labels = ann.annotate(Window(-1, t, t + 1, t), pose=(T_co[0], T_bc[0], True))
     got = compute_slice(fc._slice_annotator, t, T_co[0], T_bc[0])
-    assert any(c for _, _, c in got)
-    for (name, in_view, contours), o in zip(got, labels.objects):
+    assert any(c for _, _, c, _ in got)
+    for (name, in_view, contours, field), o in zip(got, labels.objects):
         assert name == o.name and in_view == o.in_view
         want = mask_contours(o.mask_visible) if o.in_view else []
         assert len(contours) == len(want) and all(np.array_equal(a, b) for a, b in zip(contours, want))
+        assert (field is not None) == bool(want)
 
 
 def fake_slice(n_points: int, seed: int):
     rng = np.random.default_rng(seed)
-    return [("a", True, [rng.integers(0, 100, (n_points, 2)).astype(np.int32)]), ("b", False, [])]
+    return [("a", True, [rng.integers(0, 100, (n_points, 2)).astype(np.int32)], None), ("b", False, [], None)]
 
 
 def test_slice_cache_is_bounded_in_bytes_and_keeps_the_recently_used():
@@ -120,8 +121,8 @@ def test_slice_cache_is_bounded_in_bytes_and_keeps_the_recently_used():
 
 def test_the_computers_slice_cache_stays_within_its_byte_bound(session):
     fc = FrameComputer()
-    fc.slice_cache = SliceCache(max_bytes=20_000)
+    fc.slice_cache = SliceCache(max_bytes=120_000)
     for _ in range(6):
         fc.spacetime(session.request())
-        assert 0 < fc.slice_cache.nbytes <= 20_000
+        assert 0 < fc.slice_cache.nbytes <= 120_000
         session.step_windows(2)

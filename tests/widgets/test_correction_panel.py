@@ -3,7 +3,7 @@ import pytest
 from PySide6 import QtCore, QtWidgets
 from scipy.spatial.transform import Rotation
 
-from evpose.core.data.geometry import pose_error
+from evpose.core.data.geometry import make_T, pose_error
 from evpose.widgets.correction_panel import CorrectionPanel
 
 
@@ -57,26 +57,25 @@ def test_nudge_buttons_move_the_object_in_camera_axes(panel, session, qtbot):
     d = T1[0, 0, :3, 3] - T0[0, 0, :3, 3]
     np.testing.assert_allclose(d, [0.003, 0, 0], atol=1e-9)  # 3 mm along camera x
     assert len(session.history) == 1  # merged into one undo step
-    # the panel shows the correction in the base frame: 3 mm along the camera's x axis there
-    R_bc = session.current_T_base_cam()[:3, :3]
-    t_mm = 3.0 * R_bc[:, 0]
-    assert panel.object_delta.text() == ("correction (base frame): Δ rot 0.000°, Δ t 3.00 mm "
-                                         f"[{t_mm[0]:+.2f}, {t_mm[1]:+.2f}, {t_mm[2]:+.2f}] mm")
-    box = session.scene.model("box")
-    c_base = session.scene.T_base_obj("box") @ np.append(box.bbox_center_m, 1.0)   # box centre, base frame
+    # the panel shows the move in the chosen axes: the box centre moved 3 mm along camera x
+    assert panel.object_delta.text() == ("centre moved 3.00 mm  [+3.00, +0.00, +0.00] mm\n"
+                                         "rotated 0.000°  [+0.000, +0.000, +0.000]°")
     rb = panel.findChild(QtWidgets.QToolButton, "rotate_z_plus")
     panel.rot_step.setCurrentIndex(3)  # 1 degree
     qtbot.mouseClick(rb, QtCore.Qt.LeftButton)
     T2, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
     _, dR = pose_error(T2[0, 0], T1[0, 0])
     assert np.degrees(dR) == pytest.approx(1.0, abs=1e-9)
-    # 1 degree about camera z through the box centre: the base-frame correction turns by 1 degree
-    # and its translation swings about that centre
-    R_step = Rotation.from_rotvec(np.radians(1.0) * R_bc[:, 2]).as_matrix()
-    t_mm = (R_step @ (t_mm * 1e-3) + c_base[:3] - R_step @ c_base[:3]) * 1e3
-    assert abs(np.linalg.norm(t_mm) - 3.0) > 0.05       # distinguishable from the 3.00 mm before
-    assert panel.object_delta.text() == (f"correction (base frame): Δ rot 1.000°, Δ t {np.linalg.norm(t_mm):.2f} mm "
-                                         f"[{t_mm[0]:+.2f}, {t_mm[1]:+.2f}, {t_mm[2]:+.2f}] mm")
+    # 1 degree about camera z through the box centre: the centre stays, the readout says so
+    assert panel.object_delta.text() == ("centre moved 3.00 mm  [+3.00, +0.00, +0.00] mm\n"
+                                         "rotated 1.000°  [+0.000, +0.000, +1.000]°")
+    # the same correction in the robot base's axes: the camera's x and z axes seen from the base
+    panel.frame_combo.setCurrentIndex(2)
+    R_bc = session.current_T_base_cam()[:3, :3]
+    t_mm, r_deg = np.round(3.0 * R_bc[:, 0], 2) + 0.0, np.round(R_bc[:, 2], 3) + 0.0
+    assert panel.object_delta.text() == (f"centre moved 3.00 mm  [{t_mm[0]:+.2f}, {t_mm[1]:+.2f}, {t_mm[2]:+.2f}] mm"
+                                         f"\nrotated 1.000°  [{r_deg[0]:+.3f}, {r_deg[1]:+.3f}, "
+                                         f"{r_deg[2]:+.3f}]°")
     session.history.undo()
     session.history.undo()
     T3, _ = session.scene.T_cam_obj([session.view.t_us], ["box"])
@@ -98,3 +97,30 @@ def test_nudge_offset_shortcut_steps(panel, session):
     panel.nudge_offset(+1)
     panel.nudge_offset(+1, big=True)
     assert session.scene.corrections.offset_us == 11_000
+
+
+def _readout_numbers(text: str) -> tuple[float, float]:
+    """(centre displacement mm, rotation degrees) from the panel's pose readout."""
+    first, second = text.split("\n")
+    return float(first.split()[2]), float(second.split()[1].rstrip("°"))
+
+
+def test_readout_of_a_rotation_about_the_centre_is_0_mm(panel, session):
+    """Issue 16: after a 10 mm move, a 5 degree rotation about the object's centre changed "Δ t" from 8.00 to
+    28.65 mm (the lever arm of the base-frame delta). The readout is the displacement of the centre."""
+    panel.object_combo.setCurrentText("box")
+    session.nudge_object("box", "camera", rot_deg=(0, 5, 0), mergeable=False)
+    assert _readout_numbers(panel.object_delta.text()) == (0.0, 5.0)
+    session.nudge_object("box", "object", trans_mm=(10, 0, 0), mergeable=False)
+    assert _readout_numbers(panel.object_delta.text()) == (10.0, 5.0)
+    session.nudge_object("box", "camera", rot_deg=(5, 0, 0), mergeable=False)      # about the centre again
+    moved, angle = _readout_numbers(panel.object_delta.text())
+    assert moved == 10.0 and 5.0 < angle <= 10.0
+    # an accepted estimate reads as the Refine dialog reports it: 7.62 mm of the centre, 5.19 degrees
+    box = session.scene.model("box")
+    T0 = session.scene.manifest.object("box").T_base_obj
+    c = T0[:3, :3] @ box.bbox_center_m + T0[:3, 3]
+    R = Rotation.from_rotvec(np.radians(5.19) * np.array([0.6, 0.0, 0.8])).as_matrix()
+    shift = np.array([0.00762, 0.0, 0.0])
+    session.apply_pose_estimate("box", make_T(R, c - R @ c + shift))
+    assert _readout_numbers(panel.object_delta.text()) == (7.62, 5.19)

@@ -96,3 +96,33 @@ def test_legend_lists_polarities_window_and_shown_objects():
     html = legend_html(rows)
     assert "color:#008000'>\u2014 cyl<" in html and "box" not in html
     assert "color:#ff0000'>\u00b7 ON events<" in html
+
+
+def test_legend_in_band_mode_names_the_band_and_the_dimmed_rest():
+    tubes = [("box", (255, 0, 0), []), ("cyl", (0, 128, 0), [])]
+    rows = legend_entries(tubes, hidden=set(), band_px=2.5)
+    assert [text for text, _ in rows][:3] == ["events \u2264 2.5 px from a silhouette: its colour",
+                                              "other events (dimmed)", "current window"]
+    assert [text for text, _ in rows][3:] == ["box", "cyl"]
+
+
+def test_band_split_of_points():
+    from types import SimpleNamespace
+
+    from evpose.widgets.spacetime_band import BandSplitter, band_mask, band_palette
+
+    edge = np.array([0.5, 2.0, 3.5, np.inf, 1.0], np.float32)
+    nearest = np.array([0, 1, 1, -1, 2], np.int8)
+    assert band_mask(edge, nearest, 3.0, set()).tolist() == [True, True, False, False, True]
+    assert band_mask(edge, nearest, 3.0, {1}).tolist() == [True, False, False, False, True]
+    pts = np.arange(15, dtype=np.float32).reshape(5, 3)
+    data = SimpleNamespace(points=pts, polarity=np.array([1, 0, 1, 0, 1], np.uint8), edge_px=edge, nearest=nearest)
+    sp = BandSplitter().split(data, 3.0, True, set())
+    assert sp.band_points.tolist() == pts[[0, 1, 4]].tolist() and sp.band_colors.tolist() == [0, 1, 2]
+    assert sp.rest_points.tolist() == pts[[2, 3]].tolist() and sp.rest_colors.tolist() == [1, 0]
+    splitter = BandSplitter()
+    assert splitter.split(data, 3.0, True, set()) is splitter.split(data, 3.0, True, set())   # cached
+    off = splitter.split(data, 3.0, False, set())
+    assert off.rest_points is pts and len(off.band_points) == 0 and off.in_band is None
+    pal = band_palette([(255, 0, 0), (0, 255, 0)])
+    assert pal[1][:3] == (0.0, 1.0, 0.0) and len(pal) == 16
