@@ -28,3 +28,37 @@ def msidx_cache_file(path):
     from evpose.core.data.event_index import default_cache_dir
 
     return default_cache_dir() / f"{hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()}.npz"
+
+
+def describe_file_differences(got: dict, ref: dict, root_got=None, root_ref=None) -> list[str]:
+    """The names whose contents differ between two ``{name: bytes}`` trees (or, with ``root_got`` / ``root_ref``,
+    two ``{name: digest}`` snapshots of those folders), each with what differs: for a PNG whether the decoded
+    pixels are equal (only the deflate stream differs) or how many pixels of which channels differ; so that a
+    rare byte difference says where it comes from when it happens."""
+    from pathlib import Path
+
+    import cv2
+    import numpy as np
+
+    out = []
+    for name in sorted(k for k in got if k in ref and got[k] != ref[k]):
+        a, b = got[name], ref[name]
+        if root_got is not None:
+            a, b = (Path(root_got) / name).read_bytes(), (Path(root_ref) / name).read_bytes()
+        note = f"{len(a)} vs {len(b)} bytes"
+        if name.endswith(".png"):
+            ia = cv2.imdecode(np.frombuffer(a, np.uint8), cv2.IMREAD_UNCHANGED)
+            ib = cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_UNCHANGED)
+            if ia is None or ib is None or ia.shape != ib.shape:
+                note += ", undecodable or of another shape"
+            elif np.array_equal(ia, ib):
+                note += ", same pixels (only the compressed stream differs)"
+            else:
+                diff = (ia != ib).reshape(ia.shape[0], ia.shape[1], -1)
+                where = np.argwhere(diff.any(axis=2))
+                chans = np.flatnonzero(diff.any(axis=(0, 1))).tolist()
+                r, c = where[0]
+                note += (f", {len(where)} pixels differ (channels {chans} in OpenCV's BGR order; first at row {r}, column {c}: "
+                         f"{ia[r, c].tolist()} vs {ib[r, c].tolist()})")
+        out.append(f"{name}: {note}")
+    return out

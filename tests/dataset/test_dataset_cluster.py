@@ -17,6 +17,7 @@ import pytest
 
 from evpose.core.data.events import Cancelled
 from evpose.core.dataset.dataset import Dataset
+from evpose_testing import describe_file_differences
 
 #: Fields that measure time, not results.
 TIMING_KEYS = {"runtime_s", "timings_s", "pool_startup_s", "jobs"}
@@ -88,7 +89,7 @@ def test_dataset_export_equals_the_single_scene_exports(dask_client, tiny_datase
     for name, ref in reference_epose.items():
         got = tree(tmp_path / "out" / name)
         assert got.keys() == ref.keys(), name
-        assert [k for k in got if got[k] != ref[k]] == [], name
+        assert describe_file_differences(got, ref) == [], name
     # a rerun skips what is complete
     again = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out")
     assert all(s["written"] == 0 and s["skipped_complete"] > 0 for s in again.scenes.values())
@@ -160,7 +161,7 @@ def test_a_killed_worker_gives_the_same_export(dask_client, tiny_dataset, refere
     for name, ref in reference_epose.items():
         got = tree(tmp_path / "out" / name)
         assert got.keys() == ref.keys(), name
-        assert [k for k in got if got[k] != ref[k]] == [], name
+        assert describe_file_differences(got, ref) == [], name
     dask_client.wait_for_workers(2, timeout=60)      # the nanny restarts the worker for the next tests
 
 
@@ -180,7 +181,7 @@ def test_an_interrupted_export_resumes(dask_client, tiny_dataset, reference_epos
     assert sum(s["skipped_complete"] for s in res.scenes.values()) > 0            # it resumed
     for name, ref in reference_epose.items():
         got = tree(tmp_path / "out" / name)
-        assert got.keys() == ref.keys() and [k for k in got if got[k] != ref[k]] == [], name
+        assert got.keys() == ref.keys() and describe_file_differences(got, ref) == [], name
 
 
 def test_a_broken_scene_is_reported_and_the_others_complete(dask_client, dataset_copy, tmp_path):
@@ -260,7 +261,7 @@ def test_an_external_scheduler_and_workers_give_the_same_export(tiny_dataset, re
         assert json.loads(r.stdout)["failed"] == {}
         for name, ref in reference_epose.items():
             got = tree(tmp_path / "out" / name)
-            assert got.keys() == ref.keys() and [k for k in got if got[k] != ref[k]] == [], name
+            assert got.keys() == ref.keys() and describe_file_differences(got, ref) == [], name
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -314,7 +315,7 @@ def test_ctrl_c_stops_the_export_and_its_cluster_and_a_rerun_completes(tiny_data
     assert r.returncode == 0, r.stderr
     for name, ref in reference_epose.items():
         got = tree(out / name)
-        assert got.keys() == ref.keys() and [k for k in got if got[k] != ref[k]] == [], name
+        assert got.keys() == ref.keys() and describe_file_differences(got, ref) == [], name
 
 
 def test_local_workers_keep_the_default_malloc_trimming(dask_client):
