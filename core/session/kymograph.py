@@ -304,9 +304,10 @@ class KymographComputer:
             return maps[min(ok, key=lambda i: abs(int(times[i]) - t))]
 
         names = ann.names
-        preferred = names.index(view.selected) if view.selected in names else None
+        shown = [k for k, n in enumerate(names) if n not in view.hidden]
+        preferred = names.index(view.selected) if view.selected in names and view.selected not in view.hidden else None
         line = default_line(nearest(tc), nearest(tc - MOTION_PROBE_US), nearest(tc + MOTION_PROBE_US), len(names),
-                            preferred)
+                            preferred, shown=shown)
         return line, True
 
     def _tracks(self, scene, view, line: KymoLine, times, maps, density, t_ext0_rel_us: int,

@@ -102,15 +102,17 @@ def mask_extent_along(mask: np.ndarray, centre: np.ndarray, d: np.ndarray) -> fl
 
 
 def default_line(label_now: np.ndarray, label_before: np.ndarray, label_after: np.ndarray, n_objects: int,
-                 preferred: int | None = None, margin_px: float = DEFAULT_LINE_MARGIN_PX) -> KymoLine | None:
+                 preferred: int | None = None, margin_px: float = DEFAULT_LINE_MARGIN_PX,
+                 shown=None) -> KymoLine | None:
     """A line across an object along its image motion: through the centroid of its visible silhouette in
     ``label_now``, in the direction its centroid moves from ``label_before`` to ``label_after``, reaching
     ``margin_px`` beyond the silhouette on both sides (clipped to the image). The object is ``preferred``
-    when visible, else the one whose centroid moves most (largest silhouette when nothing moves). None when
-    no object is visible."""
+    when visible, else the one whose centroid moves most (the largest silhouette when none moves more than
+    0.5 px). Only the objects in ``shown`` (indices; default all) are candidates: a hidden object has no track.
+    None when no candidate is visible."""
     H, W = label_now.shape
     best, best_key = None, None
-    for k in range(n_objects):
+    for k in (range(n_objects) if shown is None else shown):
         m = label_now == k
         area = int(m.sum())
         if area < 9:
@@ -123,7 +125,9 @@ def default_line(label_now: np.ndarray, label_before: np.ndarray, label_after: n
             vb, ub = np.nonzero(mb)
             va, ua = np.nonzero(ma)
             motion = np.array([ua.mean() - ub.mean(), va.mean() - vb.mean()])
-        key = (k == preferred, float(np.hypot(*motion)) > 0.5, float(np.hypot(*motion)), area)
+        speed = float(np.hypot(*motion))
+        moving = speed > 0.5
+        key = (k == preferred, moving, speed if moving else 0.0, area)
         if best_key is None or key > best_key:
             best, best_key = (k, c, motion, m), key
     if best is None:

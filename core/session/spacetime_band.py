@@ -11,6 +11,7 @@ distance interpolates correctly across a moving edge, an unsigned one would not)
 """
 from __future__ import annotations
 
+import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -134,10 +135,36 @@ def stacked_fields(merged: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     return np.stack([np.stack([sd, obj], axis=-1) for sd, obj in merged])
 
 
+class SliceValue(list):
+    """One silhouette slice ``[(name, in_view, contours, field)]`` (a list that can be weakly referenced): the
+    caches derived from slices (:class:`MergedFieldCache`, :class:`~evpose.core.session.spacetime_surface.SurfaceCache`)
+    recognise a slice by identity without keeping it alive, so the slice cache's byte bound holds for everything
+    a slice carries."""
+
+    __slots__ = ("__weakref__",)
+
+
+def value_ref(value):
+    """A weak reference to ``value`` (a :class:`SliceValue`); any other object is held by a strong one."""
+    try:
+        return weakref.ref(value)
+    except TypeError:
+        return lambda: value
+
+
+def drop_dead(items: OrderedDict) -> None:
+    """Remove the entries of a derived cache whose slice values are gone (``entry[0]`` a :func:`value_ref`, or a
+    tuple of them)."""
+    dead = [k for k, v in items.items() if any(r() is None for r in (v[0] if isinstance(v[0], tuple) else (v[0],)))]
+    for k in dead:
+        del items[k]
+
+
 class MergedFieldCache:
     """The merged fields of silhouette slices, ``(H, W, 2)`` int8 (signed distance, object), by slice value
-    (the cached slice list itself: the same object for the same time and poses) and hidden objects; least
-    recently used first out beyond ``max_items``."""
+    (the cached slice list itself: the same object for the same time and poses; recognised by identity, not
+    kept alive: the fields of a slice the slice cache dropped go with it) and hidden objects; least recently used
+    first out beyond ``max_items``."""
 
     def __init__(self, max_items: int = MERGED_CACHE_ITEMS):
         self.max_items = int(max_items)
@@ -153,13 +180,14 @@ class MergedFieldCache:
         """The merged field of one slice's value ``[(name, in_view, contours, field)]`` without ``hidden``."""
         key = (id(value), frozenset(hidden))
         hit = self._items.get(key)
-        if hit is not None and hit[0] is value:
+        if hit is not None and hit[0]() is value:
             self._items.move_to_end(key)
             return hit[1]
         shown = {n: k for k, n in enumerate(names) if n not in hidden}
         sd, obj = merged_field([(shown[n], f) for n, _, _, f in value if f is not None and n in shown], height, width)
         pair = np.stack([sd, obj], axis=-1)
-        self._items[key] = (value, pair)          # the value held: its id is not reused while the entry lives
+        drop_dead(self._items)                    # fields of slices the slice cache dropped
+        self._items[key] = (value_ref(value), pair)   # not kept alive by this cache; a reused id fails the check
         self._items.move_to_end(key)
         while len(self._items) > self.max_items:
             self._items.popitem(last=False)

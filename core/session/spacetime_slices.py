@@ -19,7 +19,7 @@ from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 from evpose.core.label.overlay import mask_contours
 from evpose.core.label.windows import Window
-from evpose.core.session.spacetime_band import signed_field
+from evpose.core.session.spacetime_band import SliceValue, signed_field
 
 #: At most this many slices are kept (eight spans of the default twelve slices).
 SLICE_CACHE_SLICES = 96
@@ -54,7 +54,7 @@ def compute_slice(ann: Annotator, t_us: int, T_cam_obj: np.ndarray, T_base_cam: 
     (M, 2) pixel polylines) of the object's visible pixels in one z-buffered render (``[]`` out of view) and their
     :class:`~evpose.core.session.spacetime_band.SignedField` (None when no pixel is visible)."""
     lab = ann.annotate(Window(-1, int(t_us), int(t_us) + 1, int(t_us)), pose=(T_cam_obj, T_base_cam, True))
-    out = []
+    out = SliceValue()
     for k, o in enumerate(lab.objects):
         mask = lab.label_map == k if o.in_view and lab.label_map is not None else None
         contours = mask_contours(mask) if mask is not None else []

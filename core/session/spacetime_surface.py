@@ -12,6 +12,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from evpose.core.session.spacetime_band import drop_dead, value_ref
+
 #: Points per resampled contour ring.
 RING_POINTS = 48
 #: Contours shorter than this (px) are not joined (specks).
@@ -93,7 +95,8 @@ def joined_rings(contours_a: list, contours_b: list) -> tuple[np.ndarray, np.nda
 
 class SurfaceCache:
     """:func:`joined_rings` by the two slices' values (the cached slice lists: the same objects for the same
-    times and poses) and the object; least recently used first out beyond ``max_items``."""
+    times and poses; recognised by identity, not kept alive: the rings of a slice the slice cache dropped go
+    with it) and the object; least recently used first out beyond ``max_items``."""
 
     def __init__(self, max_items: int = SURFACE_CACHE_ITEMS):
         self.max_items = int(max_items)
@@ -105,11 +108,12 @@ class SurfaceCache:
     def joined(self, value_a: list, value_b: list, name: str, contours_a: list, contours_b: list):
         key = (id(value_a), id(value_b), name)
         hit = self._items.get(key)
-        if hit is not None and hit[0] is value_a and hit[1] is value_b:
+        if hit is not None and hit[0][0]() is value_a and hit[0][1]() is value_b:
             self._items.move_to_end(key)
-            return hit[2]
+            return hit[1]
         rings = joined_rings(contours_a, contours_b)
-        self._items[key] = (value_a, value_b, rings)      # the values held: their ids are not reused meanwhile
+        drop_dead(self._items)                            # rings of slices the slice cache dropped
+        self._items[key] = ((value_ref(value_a), value_ref(value_b)), rings)   # not kept alive by this cache
         self._items.move_to_end(key)
         while len(self._items) > self.max_items:
             self._items.popitem(last=False)

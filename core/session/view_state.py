@@ -64,13 +64,15 @@ class CountGrid:
         return self.window(self.index_at(t_us))
 
     def step(self, t_us: int, n: int) -> int:
-        """The label time of the window ``n`` windows after the one at ``t_us`` (clipped to the tiling). Windows
-        whose events all share the time ``t_us`` are stepped over: their label time is ``t_us`` itself, so
-        stepping onto one would not move the view (and the next step would land there again)."""
-        k = self.index_at(t_us) + int(n)
+        """The label time of the window ``n`` windows after the one at ``t_us`` (clipped to the tiling). A view is
+        placed by time, so a window whose label time leads back to the window at ``t_us`` or before it (events
+        sharing one time across the window border) cannot be shown: such windows are stepped over, so every step
+        changes the window shown unless the tiling ends."""
+        k0 = self.index_at(t_us)
+        k = k0 + int(n)
         w = self.window(k)
         d = 1 if n > 0 else -1
-        while n and w.t_label_us == int(t_us) and 0 <= k + d < self.n_windows:
+        while n and (self.index_at(w.t_label_us) - k0) * d <= 0 and 0 <= k + d < self.n_windows:
             k += d
             w = self.window(k)
         return w.t_label_us

@@ -115,3 +115,32 @@ def test_lag_estimate_on_a_synthetic_moving_edge():
 def test_link_segments_join_nearby_crossings_only():
     segs = link_segments([0.0, 4.0, 8.0], [np.array([10.0, 50.0]), np.array([12.0]), np.array([30.0])])
     assert segs.tolist() == [[[10.0, 0.0], [12.0, 4.0]]]
+
+
+def test_the_default_line_crosses_a_shown_object(kymo_session):
+    kc = KymographComputer()
+    d = kymograph_at(kymo_session, kc, TRUE_OFFSET_US)
+    crossed = [t.name for t in d.tracks]
+    try:
+        for name in crossed:
+            kymo_session.set_object_visible(name, False)
+        d2 = kc.kymograph(KymographRequest(kymo_session.request()))
+        assert d2.auto_line and d2.tracks and d2.lag_ms is not None      # across another object, with its lag
+        assert not {t.name for t in d2.tracks} & set(crossed)
+    finally:
+        for name in crossed:
+            kymo_session.set_object_visible(name, True)
+
+
+def test_the_default_line_takes_the_largest_silhouette_when_none_moves():
+    from evpose.core.session.kymograph_line import default_line
+
+    now = np.full((100, 200), -1, np.int8)
+    now[40:80, 100:180] = 1                   # object 1: 3200 px, still
+    now[10:20, 10:20] = 0                     # object 0: 100 px
+    after = now.copy()
+    after[10:20, 20] = 0                      # object 0's centroid moves 0.5 px: not a motion
+    line = default_line(now, now, after, 2)
+    # along x through object 1's centroid (139.5, 59.5), reaching beyond it on both sides
+    assert line.v0 == line.v1 == pytest.approx(59.5) and line.u0 < 100 and line.u1 > 179
+    assert (line.u0 + line.u1) / 2 == pytest.approx(139.5)

@@ -409,15 +409,20 @@ def test_windows_of_n_events_are_the_exports_tiling(session):
         session.set_window_events(-1)
 
 
-def test_stepping_windows_of_n_events_never_stalls_on_equal_timestamps():
+@pytest.mark.parametrize("times, n", [
+    (list(range(10)) + [10] * 6 + list(range(11, 20)), 3),     # a burst of equal times inside the tiling
+    ([0, 5, 10, 10, 10, 10, 10, 10, 11, 12, 13, 14], 4),      # a window whose events all share the last time of the one before
+])
+def test_stepping_windows_of_n_events_never_stalls_on_equal_timestamps(times, n):
     """Windows whose events all share one timestamp (a burst of 10^5 events in 1 µs on a dense recording): their
-    label time is that timestamp, where the window before also ends; stepping must still move on."""
+    label time is that timestamp, where the window before also ends; every step must still change the window shown
+    (the view is placed by time: the window shown is the one at the label time)."""
     from evpose.core.session.view_state import CountGrid
 
-    class Store:                        # event times: 0..9, then six events at 10, then 11..19
-        t = np.array(list(range(10)) + [10] * 6 + list(range(11, 20)), dtype=np.int64)
+    class Store:
+        t = np.array(times, dtype=np.int64)
         n_events = len(t)
-        t_first_us, t_last_us = 0, 19
+        t_first_us, t_last_us = int(t[0]), int(t[-1])
 
         def index_of(self, t_us):
             return int(np.searchsorted(self.t, t_us))
@@ -425,13 +430,16 @@ def test_stepping_windows_of_n_events_never_stalls_on_equal_timestamps():
         def read(self, i0, i1):
             return type("Ev", (), {"t": self.t[i0:i1]})()
 
-    grid = CountGrid(Store(), 3)
-    t, seen = int(grid.window(0).t_label_us), []
-    for _ in range(12):
-        t_next = grid.step(t, 1)
-        if t_next == t:
-            break
-        seen.append(t_next)
-        t = t_next
-    assert seen == sorted(seen) and seen[-1] == grid.window(grid.n_windows - 1).t_label_us
-    assert grid.step(t, -1) < t
+    grid = CountGrid(Store(), n)
+    last = grid.n_windows - 1
+    t = int(grid.window(0).t_label_us)
+    shown = [grid.index_at(t)]
+    while shown[-1] < last:
+        t = grid.step(t, 1)
+        shown.append(grid.index_at(t))
+        assert shown[-1] > shown[-2], shown                  # every step forward shows a later window
+    assert grid.step(t, 1) == t                               # the end of the tiling
+    while shown[-1] > 0:
+        t = grid.step(t, -1)
+        shown.append(grid.index_at(t))
+        assert shown[-1] < shown[-2], shown                  # and back

@@ -126,3 +126,24 @@ def test_the_computers_slice_cache_stays_within_its_byte_bound(session):
         fc.spacetime(session.request())
         assert 0 < fc.slice_cache.nbytes <= 120_000
         session.step_windows(2)
+
+
+def test_caches_derived_from_slices_keep_no_slice_the_slice_cache_dropped(session):
+    """The merged band fields and the joined surface rings recognise a slice by identity without keeping it
+    alive: the slice cache's byte bound holds for everything a slice carries."""
+    import gc
+
+    fc = FrameComputer()
+    fc.slice_cache.max_bytes = 1 << 20
+    for k in range(12):
+        session.set_offset_correction_us(session.scene.corrections.offset_us + 700 * (k + 1))   # new poses: new slices
+        fc.spacetime(session.request())
+    gc.collect()
+    live = {id(v) for v, _ in fc.slice_cache._items.values()}
+    refs = [r for r, _ in fc.field_cache._items.values()]
+    refs += [r for pair, _ in fc.surface_cache._items.values() for r in pair]
+    assert refs and all(r() is None or id(r()) in live for r in refs)
+    session.set_offset_correction_us(session.scene.corrections.offset_us + 700)
+    fc.spacetime(session.request())              # inserts drop the entries of dead slices
+    assert len(fc.field_cache) <= len(fc.slice_cache)
+    assert all(r() is not None for r, _ in fc.field_cache._items.values())
