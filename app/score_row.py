@@ -90,6 +90,8 @@ class ScoreRowUpdater(QtCore.QObject):
         tl = self.window.timeline
         if self.session is None or tl is None:
             return
+        self._cancel()               # a recompute still running would replace this newer table when it ends
+        self._timer.stop()
         self.table, self.window_us, self.key = table, int(window_us), key
         t_s = np.array([tl.x_of(t) for t in table.t_label_us], np.float64)
         tl.set_scores(t_s, {n: np.ma.filled(table.score[n].astype(np.float64), np.nan) for n in table.objects},
@@ -126,7 +128,7 @@ class ScoreRowUpdater(QtCore.QObject):
         snapshot = session.scene.with_corrections(session.scene.corrections.copy())
         key, window_us, compute = document_key(snapshot), self.window_us, self.compute
         job = Job(lambda progress, cancel: compute(snapshot, window_us, progress, cancel))
-        job.signals.finished.connect(lambda table, job=job: self._finished(job, session, table, key))
+        job.signals.finished.connect(lambda table, job=job: self._finished(job, session, table, key, window_us))
         job.signals.failed.connect(lambda message, details, job=job: self._failed(job, message))
         self.job = job
         self._running.add(job)
@@ -139,14 +141,14 @@ class ScoreRowUpdater(QtCore.QObject):
             self.jobs_cancelled += 1
             self.job = None
 
-    def _finished(self, job: Job, session, table, key) -> None:
+    def _finished(self, job: Job, session, table, key, window_us: int) -> None:
         self._running.discard(job)
         if job is not self.job or session is not self.session or job.cancelled:
-            self.results_dropped += 1        # superseded by a newer change, or of a closed scene
+            self.results_dropped += 1        # superseded by a newer change or table, or of a closed scene
             return
         self.job = None
         self.window.align.last_scores = table
-        self.show(table, self.window_us, key)
+        self.show(table, window_us, key)     # the window length the job scored with
 
     def _failed(self, job: Job, message: str) -> None:
         self._running.discard(job)

@@ -5,8 +5,9 @@ The window's shortcuts include single printable keys (``R`` rejects the window, 
 button, a drop-down box or a slider: after a click on "Refine", typing "blurred edges" made two rejected
 marks, a 9.8 mm nudge and started playback (issue 16). While one of those has the keyboard focus in the main
 window, :class:`ShortcutGuard` keeps the single-key shortcuts from firing (``Ctrl+…``, ``F…`` and the arrows
-still work), swallows ``Space`` on a button that got the focus from a mouse click (it would click it again),
-says in the status bar how to get the shortcuts back, and gives the focus back to the frame on ``Esc``.
+still work), swallows ``Space`` on a button or box that got the focus from a mouse click (it would click it again or open the box),
+swallows typed keys on a drop-down box (its keyboard search would change its value: "5" made the nudge step
+5 mm), says in the status bar how to get the shortcuts back, and gives the focus back to the frame on ``Esc``.
 
 The filter sits on the focused widget only (moved along by ``QApplication.focusChanged``), not on the whole
 application: it sees a handful of events, not every paint and mouse move.
@@ -85,7 +86,7 @@ class ShortcutGuard(QtCore.QObject):
             return False
         t = event.type()
         if t == QtCore.QEvent.ShortcutOverride and is_typed_key(event):
-            event.accept()                # the key goes to the widget, which ignores letters
+            event.accept()                # not a shortcut: the key goes to the widget (a box's is dropped below)
             key = "Space" if event.key() == QtCore.Qt.Key_Space else event.text()
             self.blocked.append(key)
             self.notify(f"“{key}” typed while {_describe(obj)} has the keyboard focus: not used as a shortcut "
@@ -97,6 +98,8 @@ class ShortcutGuard(QtCore.QObject):
                     self.home()
                 return True
             if event.key() == QtCore.Qt.Key_Space and self.focus_by_mouse and \
-                    isinstance(obj, QtWidgets.QAbstractButton):
-                return True                # no second click of the button just clicked
+                    isinstance(obj, (QtWidgets.QAbstractButton, QtWidgets.QComboBox)):
+                return True                # no second click of the button just clicked, no popup of the box
+            if isinstance(obj, QtWidgets.QComboBox) and is_typed_key(event) and event.key() != QtCore.Qt.Key_Space:
+                return True                # a drop-down's keyboard search would pick the item the key starts
         return False

@@ -38,7 +38,10 @@ def pixel_of(x: float, y: float) -> tuple[int, int]:
 class FrameViewBox(pg.ViewBox):
     """A pyqtgraph ViewBox whose left clicks and drags on an object select and move it.
 
-    ``pick(u, v)`` names the object drawn at pixel (u, v), or None (then the ViewBox pans as usual)."""
+    ``pick(u, v)`` names the object drawn at pixel (u, v), or None (then the ViewBox pans as usual).
+    ``drag_refused(message)``: a drag started on an object that may not be moved now (a proposal is previewed)."""
+
+    drag_refused = QtCore.Signal(str)
 
     def __init__(self, session: Session, pick: Callable[[int, int], str | None], **kwargs):
         super().__init__(**kwargs)
@@ -66,7 +69,9 @@ class FrameViewBox(pg.ViewBox):
         if ev.isStart():
             self._drag = None
             name = self._object_at(ev.buttonDownPos())
-            if name is not None and self.session.begin_drag(name):
+            if name is not None and self.session.preview is not None:
+                self.drag_refused.emit("Accept or reject the proposal shown on the frame before moving objects")
+            elif name is not None and self.session.begin_drag(name):
                 p = self.mapToView(ev.buttonDownPos())
                 self._drag = (drag_mode(ev.modifiers()), np.array([p.x(), p.y()]))
         if self._drag is None:

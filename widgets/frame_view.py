@@ -148,6 +148,7 @@ class FrameView(QtWidgets.QWidget):
         lay.addWidget(self.glw, 1)
         lay.addWidget(self.info)
         self._hover: tuple[int, int] | None = None
+        self.vb.drag_refused.connect(self.info.setRightText)      # why the object did not move
         self._proxy = pg.SignalProxy(self.glw.scene().sigMouseMoved, rateLimit=30, slot=self._mouse_moved)
         self.glw.viewport().installEventFilter(self)
         self.toolbar.done.connect(lambda: self.glw.setFocus(QtCore.Qt.OtherFocusReason))

@@ -81,7 +81,11 @@ class ReviewPanel(QtWidgets.QWidget):
         self._range_start = self.session.view.window().t0_us if on else None
 
     def mark(self, status: str) -> None:
-        """Mark the current window, or the range from "Range start" to the current window."""
+        """Mark the current window, or the range from "Range start" to the current window. Not while a proposal is
+        previewed on the frame (the mark would record the document, not what is on screen): the panel says so."""
+        if self.session.preview is not None:
+            self.status.setText("Accept or reject the proposal shown on the frame first")
+            return
         w = self.session.view.window()
         t0, t1 = w.t0_us, w.t1_us
         if self._range_start is not None:

@@ -211,10 +211,13 @@ class Session:
     def begin_drag(self, name: str) -> bool:
         """Start dragging object ``name`` on the frame (selecting it). Each :meth:`drag_object` until
         :meth:`end_drag` sets its pose from the pose at this moment, and all of them are one undo step
-        (they merge, however long the drag pauses). False when the frame has no camera pose."""
+        (they merge, however long the drag pauses). False when the frame has no camera pose, or while a proposal
+        is previewed (the object on screen is the proposal's, the drag would edit the document's)."""
         if name not in self.object_names:
             raise KeyError(name)
         self.end_drag()
+        if self.preview is not None:
+            return False
         T_bc, valid = self.scene.T_base_cam(np.array([self.view.window().t_label_us]))
         if not valid[0]:
             return False
@@ -294,7 +297,11 @@ class Session:
 
         The mark replaces older marks of its scope on the overlap (:func:`evpose.core.document.review.insert_mark`:
         no window is both verified and rejected, no duplicates) and records the clock and the
-        covered objects' pose digests (:func:`evpose.core.document.review.mark_state`) to detect staleness later."""
+        covered objects' pose digests (:func:`evpose.core.document.review.mark_state`) to detect staleness later.
+        Refused (``ValueError``) while a proposal is previewed (:meth:`set_preview`): the mark would record the
+        document's state, not the one on screen."""
+        if self.preview is not None:     # the frame shows the proposal, the mark would record the document
+            raise ValueError("a proposal is previewed on the frame: accept or reject it before marking windows")
         w = self.view.window()
         if obj is not None and obj not in self.object_names:
             raise KeyError(obj)

@@ -161,6 +161,12 @@ def _fake_proposal(session, dx_m=0.004, offset_us=3_000):
                     offset_std_us=40.0, method="edges")
 
 
+def begin_and_end_drag(session, name) -> bool:
+    ok = session.begin_drag(name)
+    session.end_drag()
+    return ok
+
+
 def test_preview_follows_edits_and_closing_the_panel_rejects(qtbot, window, scene_copy):
     s = window.controller.open_scene(scene_copy)
     pc = window.align.proposals
@@ -170,13 +176,20 @@ def test_preview_follows_edits_and_closing_the_panel_rejects(qtbot, window, scen
     x_doc = s.scene.T_base_obj(name)[0, 3]
     assert s.request().scene.T_base_obj(name)[0, 3] == pytest.approx(x_doc + 0.004)
     assert s.request().scene.clock.offset_us == 3_000 and s.scene.clock.offset_us == 0
-    # a review mark meanwhile goes to the document and the preview stays the proposal on top of it
-    s.add_review("verified")
-    assert pc.state == "proposal" and s.request().scene.clock.offset_us == 3_000
-    # closing the panel rejects: the views show the document, nothing more is applied
+    # no review mark and no drag meanwhile: the frame shows the proposal, a mark would record the document's
+    # state and a drag would move the document's pose from where the user does not see the object
+    with pytest.raises(ValueError, match="accept or reject"):
+        s.add_review("verified")
+    window.reviews.buttons["verified"].click()
+    assert s.scene.corrections.reviews == [] and "proposal" in window.reviews.status.text()
+    assert not s.begin_drag(name)
+    assert pc.state == "proposal" and s.request().scene.clock.offset_us == 3_000 and len(s.history) == 0
+    # closing the panel rejects: the views show the document, nothing is applied
     pc.dock.close()
     assert pc.state == "rejected" and s.preview is None and pc.proposal is None
-    assert s.request().scene.clock.offset_us == 0 and len(s.history) == 1
+    assert s.request().scene.clock.offset_us == 0 and len(s.history) == 0
+    s.add_review("verified")                                     # marks again once the proposal is gone
+    assert begin_and_end_drag(s, name)
 
 
 def test_a_clock_or_pose_edit_makes_the_proposal_stale(qtbot, window, scene_copy):

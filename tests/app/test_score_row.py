@@ -109,3 +109,34 @@ def test_a_newer_change_cancels_and_supersedes_an_older_recompute(qtbot, window,
     qtbot.wait(50)
     assert row.results_dropped == 1 and not tl.scores_stale                # ... is dropped
     assert_row_equals(tl, expected)
+
+
+def test_a_score_all_table_supersedes_a_running_recompute(qtbot, window, scored):
+    """A recompute still running when a fresh "Score all windows" table arrives (here of another window length)
+    must not replace that table when it ends."""
+    s, tl, row = scored, window.timeline, window.score_row
+    gate, entered = threading.Event(), threading.Event()
+    compute = row.compute
+
+    def held(scene, window_us, progress, cancel):
+        entered.set()
+        assert gate.wait(60)
+        return compute(scene, window_us, progress, lambda: False)
+
+    row.compute = held
+    try:
+        s.set_offset_correction_us(1000, mergeable=False)
+        qtbot.waitUntil(entered.is_set, timeout=10_000)
+        late = row.job
+        snap = s.scene.with_corrections(s.scene.corrections.copy())
+        table = score_windows(snap, window_us=20_000)                 # "Score all" with 20 ms windows
+        from evpose.app.score_row import document_key
+
+        row.show(table, 20_000, document_key(snap))
+        assert late.cancelled and not tl.scores_stale and row.window_us == 20_000
+        with qtbot.waitSignal(late.signals.finished, timeout=60_000):
+            gate.set()
+    finally:
+        gate.set()
+    qtbot.wait(50)
+    assert row.table is table and row.window_us == 20_000 and not tl.scores_stale

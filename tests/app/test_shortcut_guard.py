@@ -48,6 +48,19 @@ def test_typing_after_clicking_a_button_fires_no_shortcut(qtbot, window, scene_c
     assert len(s.history) == n and s.history.can_redo
 
 
+def test_typing_on_a_drop_down_box_changes_neither_the_box_nor_the_view(qtbot, window, scene_copy):
+    """A typed "5" (the counts representation) on the focused nudge-step box picked its "5 mm" item by the box's
+    keyboard search: the next nudge would have been 5x larger."""
+    s = _open(qtbot, window, scene_copy)
+    combo = window.panel.trans_step
+    combo.setFocus(QtCore.Qt.MouseFocusReason)
+    qtbot.waitUntil(lambda: QtWidgets.QApplication.focusWidget() is combo, timeout=2000)
+    before, rep = combo.currentText(), s.view.representation
+    qtbot.keyClicks(combo, "52")
+    assert combo.currentText() == before and s.view.representation == rep
+    assert "5" in window.shortcut_guard.blocked
+
+
 def test_typing_in_a_field_fires_no_shortcut(qtbot, window, scene_copy):
     s = _open(qtbot, window, scene_copy)
     s.select("box")
