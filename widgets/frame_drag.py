@@ -1,7 +1,7 @@
 """Direct manipulation on the frame: click an object to select it, drag it to correct its pose.
 
 A left drag that starts on an object moves it parallel to the image at its depth; with Shift it spins
-about the line of sight through its centre; with Ctrl it tilts (trackball). The pose follows the cursor
+about the camera's z axis through its centre; with Ctrl it tilts (trackball). The pose follows the cursor
 from the start of the drag (:meth:`evpose.core.session.model.Session.drag_object`), and the whole drag is
 one undo step. A drag that starts off the objects pans the view as before; the wheel zooms.
 """
@@ -20,7 +20,7 @@ DRAG_MODIFIERS = (("spin", QtCore.Qt.ShiftModifier), ("tilt", QtCore.Qt.ControlM
 
 #: How to use it, for tooltips and the README.
 DRAG_HELP = ("click an object: select it; drag it: move it parallel to the image; Shift+drag: spin it about "
-             "the line of sight; Ctrl+drag: tilt it (one undo step per drag)")
+             "the camera's z axis; Ctrl+drag: tilt it (one undo step per drag)")
 
 
 def drag_mode(modifiers) -> str:

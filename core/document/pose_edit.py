@@ -141,8 +141,8 @@ def drag_step(mode: str, uv_from, uv_to, camera, T_base_obj: np.ndarray, T_base_
     ``S @ T_base_obj``), all about the object's centre ``pivot_obj_m``:
 
     * ``"move"``: a translation parallel to the image at the centre's depth (:func:`image_plane_shift`);
-    * ``"spin"``: a rotation about the line of sight through the centre by the angle the cursor swept
-      about the centre's image (:func:`swept_angle_deg`);
+    * ``"spin"``: a rotation about the camera's z axis (the optical axis direction) through the centre by the
+      angle the cursor swept about the centre's image (:func:`swept_angle_deg`);
     * ``"tilt"``: a rotation about the camera's x and y axes through the centre (:func:`tilt_rotation_deg`).
 
     ``T_base_cam``: the camera pose of the frame on screen (its label time).

@@ -231,7 +231,7 @@ class Session:
     def drag_object(self, uv_from, uv_to, mode: str = "move") -> None:
         """Set the dragged object's pose for a drag from pixel ``uv_from`` to ``uv_to`` (raw image pixels,
         from the start of the drag): ``mode`` "move" (parallel to the image at the object's depth), "spin"
-        (about the line of sight through its centre) or "tilt"; see
+        (about the camera's z axis through its centre) or "tilt"; see
         :func:`evpose.core.document.pose_edit.drag_step`."""
         if self._drag is None:
             return
