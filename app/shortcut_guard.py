@@ -5,9 +5,10 @@ The window's shortcuts include single printable keys (``R`` rejects the window, 
 button, a drop-down box or a slider: after a click on "Refine", typing "blurred edges" made two rejected
 marks, a 9.8 mm nudge and started playback (issue 16). While one of those has the keyboard focus in the main
 window, :class:`ShortcutGuard` keeps the single-key shortcuts from firing (``Ctrl+…``, ``F…`` and the arrows
-still work), swallows ``Space`` on a button or box that got the focus from a mouse click (it would click it again or open the box),
-swallows typed keys on a drop-down box (its keyboard search would change its value: "5" made the nudge step
-5 mm), says in the status bar how to get the shortcuts back, and gives the focus back to the frame on ``Esc``.
+still work), swallows ``Space`` on a button or box that got the focus from a mouse click (it would click it
+again or open the box), swallows typed keys on a drop-down box (its keyboard search would change its value:
+"5" made the nudge step 5 mm), says in the status bar how to get the shortcuts back, and gives the focus back to
+the frame on ``Esc``.
 
 The filter sits on the focused widget only (moved along by ``QApplication.focusChanged``), not on the whole
 application: it sees a handful of events, not every paint and mouse move.

@@ -58,7 +58,7 @@ def describe_file_differences(got: dict, ref: dict, root_got=None, root_ref=None
                 where = np.argwhere(diff.any(axis=2))
                 chans = np.flatnonzero(diff.any(axis=(0, 1))).tolist()
                 r, c = where[0]
-                note += (f", {len(where)} pixels differ (channels {chans} in OpenCV's BGR order; first at row {r}, column {c}: "
-                         f"{ia[r, c].tolist()} vs {ib[r, c].tolist()})")
+                note += (f", {len(where)} pixels differ (channels {chans} in OpenCV's BGR order; first at row {r}, "
+                         f"column {c}: {ia[r, c].tolist()} vs {ib[r, c].tolist()})")
         out.append(f"{name}: {note}")
     return out

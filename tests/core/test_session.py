@@ -411,7 +411,7 @@ def test_windows_of_n_events_are_the_exports_tiling(session):
 
 @pytest.mark.parametrize("times, n", [
     (list(range(10)) + [10] * 6 + list(range(11, 20)), 3),     # a burst of equal times inside the tiling
-    ([0, 5, 10, 10, 10, 10, 10, 10, 11, 12, 13, 14], 4),      # a window whose events all share the last time of the one before
+    ([0, 5, 10, 10, 10, 10, 10, 10, 11, 12, 13, 14], 4),      # a window at the time the one before ends
 ])
 def test_stepping_windows_of_n_events_never_stalls_on_equal_timestamps(times, n):
     """Windows whose events all share one timestamp (a burst of 10^5 events in 1 µs on a dense recording): their
