@@ -190,9 +190,11 @@ class Session:
     # ------------------------------------------------------------------ document edits
     def set_offset_correction_us(self, offset_us: int, mergeable: bool = True) -> None:
         """Clock offset correction on top of the scene's prior (microseconds)."""
+        self.end_drag()
         self.history.set(("offset_us",), int(offset_us), text="change time offset", mergeable=mergeable)
 
     def set_skew_correction_ppm(self, skew_ppm: float, mergeable: bool = True) -> None:
+        self.end_drag()
         self.history.set(("skew_ppm",), float(skew_ppm), text="change clock skew", mergeable=mergeable)
 
     def current_T_base_cam(self) -> np.ndarray:
@@ -201,6 +203,7 @@ class Session:
 
     def nudge_object(self, name: str, frame: str, rot_deg=(0, 0, 0), trans_mm=(0, 0, 0), mergeable: bool = True) -> None:
         """Rotate (degrees) / translate (mm) an object in ``frame`` axes about its box centre."""
+        self.end_drag()
         model = self.scene.model(name)
         step = nudge_step(frame, rot_deg, trans_mm, self.scene.T_base_obj(name), self.current_T_base_cam(),
                           pivot_obj_m=model.bbox_center_m)
@@ -240,7 +243,8 @@ class Session:
         self.history.set(("object", name), step @ delta0, text=f"drag {name}", mergeable=True)
 
     def end_drag(self) -> None:
-        """End the drag: the next edit is a new undo step."""
+        """End the drag: the next edit is a new undo step. Every other edit ends a drag first, so a drag whose mouse
+        release never came (a dialog took the mouse) cannot absorb later edits into its undo step."""
         if self._drag is not None:
             self.history.merge_timeout_s = self._drag[4]
             self._drag = None
@@ -252,11 +256,13 @@ class Session:
         return None if self._drag is None else self._drag[0]
 
     def nudge_hand_eye(self, rot_deg=(0, 0, 0), trans_mm=(0, 0, 0), mergeable: bool = True) -> None:
+        self.end_drag()
         new = self.scene.corrections.hand_eye_delta @ hand_eye_step(rot_deg, trans_mm)
         self.history.set(("hand_eye",), new, text="change hand-eye", mergeable=mergeable)
 
     def reset(self, field_name: str) -> None:
         """Reset one field: ``"offset_us"``, ``"skew_ppm"``, ``"hand_eye"`` or an object name."""
+        self.end_drag()
         if field_name == "offset_us":
             self.history.set(("offset_us",), 0, text="reset time offset")
         elif field_name == "skew_ppm":

@@ -348,6 +348,20 @@ def _centre_uv(session, name):
     return session.scene.camera.project(c)[0][0]
 
 
+def test_an_edit_ends_a_drag_whose_release_never_came(session):
+    """A drag whose mouse release was lost (a dialog took the mouse) must not absorb later edits: a nudge, an
+    offset change after it are undo steps of their own, with the normal merge timeout."""
+    session.set_time(session.time_range[0] + 300_000)
+    uv = _centre_uv(session, "box")
+    assert session.begin_drag("box")
+    session.drag_object(uv, uv + [6.0, 0.0], "move")               # ... and no end_drag
+    session.nudge_object("box", "camera", trans_mm=(0, 1, 0))
+    assert session.dragging is None and session.history.merge_timeout_s == 1.5
+    assert len(session.history) == 2 and session.history.undo_text == "move box"
+    session.history.undo()
+    np.testing.assert_allclose(_centre_uv(session, "box"), uv + [6.0, 0.0], atol=1e-6)   # the drag stays
+
+
 def test_a_drag_is_one_undo_step_however_long_it_pauses(session):
     session.set_time(session.time_range[0] + 300_000)
     now = [0.0]
