@@ -115,6 +115,8 @@ class ExportDialog(QtWidgets.QDialog):
                                                   value=float(saved.get("window_ms", 10.0)))
         self.window_events = QtWidgets.QSpinBox(minimum=0, maximum=100_000_000, specialValueText="by time",
                                                 value=int(saved.get("window_events", 0)))
+        for box in (self.window_ms, self.window_events):   # recount on Enter, arrows or leaving the box, not per
+            box.setKeyboardTracking(False)                 # keystroke (windows of N events: up to 4000 reads)
         self.label_at = QtWidgets.QComboBox()
         self.label_at.addItem("window centre", "center")
         self.label_at.addItem("window end (E-POSE timing)", "end")

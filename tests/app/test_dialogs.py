@@ -100,3 +100,19 @@ def test_export_done_message_opens_the_folder(qtbot, window, scene_copy, tmp_pat
     box.open_button.click()
     assert opened == [str(tmp_path / "out")]
     qtbot.waitUntil(lambda: not shiboken6.isValid(box) or not box.isVisible(), timeout=3000)   # and it closes
+
+
+def test_export_dialog_counts_once_per_entered_value_not_per_keystroke(qtbot, window, scene_copy, monkeypatch):
+    import evpose.app.export_dialog as ed
+
+    s = window.controller.open_scene(scene_copy)
+    dlg = _dialog(qtbot, window, s)
+    calls = []
+    real = ed.window_counts
+    monkeypatch.setattr(ed, "window_counts", lambda *a, **k: calls.append(k) or real(*a, **k))
+    box = dlg.window_events
+    box.lineEdit().selectAll()
+    qtbot.keyClicks(box.lineEdit(), "5000")
+    assert calls == []                                   # typing: no recount (up to 4000 event reads each)
+    qtbot.keyClick(box.lineEdit(), QtCore.Qt.Key_Return)
+    assert len(calls) == 1 and calls[0]["window_events"] == 5000 and "5,000 events" in dlg.counts.text()
