@@ -266,12 +266,15 @@ class CorrectionPanel(QtWidgets.QWidget):
         if not name:
             return
         vec = np.zeros(3)
-        if kind == "translate":
-            vec[axis] = sign * self.trans_step.currentData() * (10 if big else 1)
-            self.session.nudge_object(name, self.current_frame(), trans_mm=vec)
-        else:
-            vec[axis] = sign * self.rot_step.currentData() * (10 if big else 1)
-            self.session.nudge_object(name, self.current_frame(), rot_deg=vec)
+        step = self.trans_step if kind == "translate" else self.rot_step
+        vec[axis] = sign * step.currentData() * (10 if big else 1)
+        try:
+            if kind == "translate":
+                self.session.nudge_object(name, self.current_frame(), trans_mm=vec)
+            else:
+                self.session.nudge_object(name, self.current_frame(), rot_deg=vec)
+        except ValueError as exc:               # camera axes where the trajectory has no camera pose
+            self.object_delta.setText(str(exc))
 
     def _nudge_hand_eye(self, kind: str, axis: int, sign: int) -> None:
         vec = np.zeros(3)
@@ -323,8 +326,11 @@ class CorrectionPanel(QtWidgets.QWidget):
             centre = scene.model(name).bbox_center_m
         except InputError as exc:               # an unreadable mesh: the scene's own error says which (the frame
             return f"no readout: {exc}"          # views report it too); the panel stays usable
+        T_bc = self.session.current_T_base_cam()
+        if T_bc is None and self.current_frame() == "camera":
+            return "no camera pose at this time (outside the trajectory):\nno camera axes to read the correction in"
         angle, rv, moved = pose_change(scene.corrections.object_delta(name), scene.manifest.object(name).T_base_obj,
-                                       centre, self.current_frame(), self.session.current_T_base_cam())
+                                       centre, self.current_frame(), np.eye(4) if T_bc is None else T_bc)
         dist = np.linalg.norm(moved)
         rv, moved = np.round(rv, 3) + 0.0, np.round(moved, 2) + 0.0      # no "-0.00"
         return (f"centre moved {dist:.2f} mm  [{moved[0]:+.2f}, {moved[1]:+.2f}, {moved[2]:+.2f}] mm\n"

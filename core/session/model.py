@@ -197,15 +197,25 @@ class Session:
         self.end_drag()
         self.history.set(("skew_ppm",), float(skew_ppm), text="change clock skew", mergeable=mergeable)
 
-    def current_T_base_cam(self) -> np.ndarray:
+    def current_T_base_cam(self) -> np.ndarray | None:
+        """The camera pose at the view time, or None when the trajectory has none there (before or after it, or in
+        a hole): then there are no camera axes to nudge along or read in."""
         T, valid = self.scene.T_base_cam(np.array([self.view.t_us]))
-        return T[0]
+        return T[0] if valid[0] else None
 
     def nudge_object(self, name: str, frame: str, rot_deg=(0, 0, 0), trans_mm=(0, 0, 0), mergeable: bool = True) -> None:
-        """Rotate (degrees) / translate (mm) an object in ``frame`` axes about its box centre."""
+        """Rotate (degrees) / translate (mm) an object in ``frame`` axes about its box centre. In camera axes only
+        where the trajectory has a camera pose at the view time (``ValueError`` otherwise: the camera's axes there
+        are unknown, and base axes would be applied under the camera's name)."""
         self.end_drag()
         model = self.scene.model(name)
-        step = nudge_step(frame, rot_deg, trans_mm, self.scene.T_base_obj(name), self.current_T_base_cam(),
+        T_bc = self.current_T_base_cam()
+        if T_bc is None:
+            if frame == "camera":
+                raise ValueError("no camera pose at this time (outside the trajectory): camera axes are unknown "
+                                 "here; use object or base axes, or go to a time with a pose")
+            T_bc = np.eye(4)                        # not used by the object and base axes
+        step = nudge_step(frame, rot_deg, trans_mm, self.scene.T_base_obj(name), T_bc,
                           pivot_obj_m=model.bbox_center_m)
         new = step @ self.scene.corrections.object_delta(name)
         self.history.set(("object", name), new, text=f"move {name}", mergeable=mergeable)

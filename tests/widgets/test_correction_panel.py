@@ -124,3 +124,23 @@ def test_readout_of_a_rotation_about_the_centre_is_0_mm(panel, session):
     shift = np.array([0.00762, 0.0, 0.0])
     session.apply_pose_estimate("box", make_T(R, c - R @ c + shift))
     assert _readout_numbers(panel.object_delta.text()) == (7.62, 5.19)
+
+
+def test_camera_axes_where_the_trajectory_has_no_camera_pose(panel, session, qtbot):
+    """Outside the trajectory the camera's axes are unknown: a nudge in camera axes is refused with the reason (it
+    used to move the object along the base axes under the camera's name), the readout says why it has no numbers,
+    and object or base axes still work."""
+    session.set_offset_correction_us(10**9)                 # every event time maps beyond the trajectory
+    assert session.current_T_base_cam() is None
+    panel.object_combo.setCurrentText("box")
+    panel.frame_combo.setCurrentIndex(0)                     # camera
+    assert "no camera pose" in panel.object_delta.text()
+    n = len(session.history)
+    qtbot.mouseClick(panel.findChild(QtWidgets.QToolButton, "translate_x_plus"), QtCore.Qt.LeftButton)
+    assert len(session.history) == n and "box" not in session.scene.corrections.object_deltas
+    assert "no camera pose" in panel.object_delta.text()
+    panel.frame_combo.setCurrentIndex(2)                     # robot base
+    qtbot.mouseClick(panel.findChild(QtWidgets.QToolButton, "translate_x_plus"), QtCore.Qt.LeftButton)
+    d = session.scene.corrections.object_delta("box")
+    np.testing.assert_allclose(d[:3, 3], [0.001 * panel.trans_step.currentData(), 0, 0], atol=1e-12)
+    assert panel.object_delta.text().startswith("centre moved")
