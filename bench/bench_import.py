@@ -46,11 +46,13 @@ stderr.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -58,6 +60,22 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / ".data"
 RATE = 2_000_000          # events per second of recording
 T0_US = 1_600_000_000_000_000
+
+
+@contextlib.contextmanager
+def staged(path: Path):
+    """Yield a path to write ``path``'s content to, in a folder this run creates beside it (``mkdtemp``: a name no
+    one else has, on the same file system); on success it is renamed to ``path``, which must not exist. The
+    folder is removed either way: the only files deleted are those this run made in it."""
+    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}-", dir=path.parent))
+    try:
+        tmp = stage / path.name           # the same name: writers that insist on a suffix get it
+        yield tmp
+        if os.path.lexists(path):
+            raise FileExistsError(f"{path}: exists; not replaced")
+        os.rename(tmp, path)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def _heavy():
@@ -92,9 +110,7 @@ def gen_bag(path: Path, n_events: int) -> None:
 
     ts = dvs_typestore()
     rng = np.random.default_rng(1)
-    tmp = path.with_suffix(".tmp")
-    tmp.unlink(missing_ok=True)
-    with Writer(tmp) as w:
+    with staged(path) as tmp, Writer(tmp) as w:
         ce = w.add_connection("/dvs/events", EVENT_ARRAY_TYPE, typestore=ts)
         cp = w.add_connection("/dvs/pose", POSE_STAMPED_TYPE, typestore=ts)
         carry = None
@@ -119,17 +135,17 @@ def gen_bag(path: Path, n_events: int) -> None:
             tn = carry[2] * 1000
             w.write(ce, int(tn[-1]), encode_event_array(*carry[:2], tn, carry[3], seq=seq, stamp_ns=int(tn[-1])))
         w.write(cp, next_pose * 1000, encode_pose_stamped(next_pose * 1000, [0.1, -0.5, 0.4], [0, 0, 0, 1]))
-    os.replace(tmp, path)
 
 
 def gen_dsec(folder: Path, n_events: int) -> None:
     import h5py
     import hdf5plugin
 
+    from evpose.core.data.atomic import atomic_write_text
+
     folder.mkdir(parents=True, exist_ok=True)
-    tmp = folder / "events.h5.tmp"
     comp = dict(hdf5plugin.Blosc(cname="zstd", clevel=1, shuffle=hdf5plugin.Blosc.SHUFFLE))
-    with h5py.File(tmp, "w") as f:
+    with staged(folder / "events.h5") as tmp, h5py.File(tmp, "w-") as f:
         ds = {k: f.create_dataset(f"events/{k}", shape=(0,), maxshape=(None,), dtype=dt, chunks=(1 << 16,), **comp)
               for k, dt in (("x", np.uint16), ("y", np.uint16), ("t", np.uint32), ("p", np.uint8))}
         n0, idx, next_ms = 0, [], 0
@@ -145,11 +161,10 @@ def gen_dsec(folder: Path, n_events: int) -> None:
             n0 += len(t)
         f.create_dataset("ms_to_idx", data=np.concatenate(idx).astype(np.uint64))
         f.create_dataset("t_offset", data=np.int64(T0_US))
-    os.replace(tmp, folder / "events.h5")
     dur_us = int(n_events / RATE * 1e6) + 100_000
     lines = [f"{(T0_US + k) // 10**6}.{(T0_US + k) % 10**6:06d} 0.1 -0.5 0.4 0 0 0 1" for k in range(0, dur_us, 10_000)]
-    (folder / "poses.txt").write_text("\n".join(lines) + "\n")
-    (folder / "cam_to_cam.yaml").write_text(
+    atomic_write_text(folder / "poses.txt", "\n".join(lines) + "\n")
+    atomic_write_text(folder / "cam_to_cam.yaml",
         "intrinsics:\n  cam0:\n    camera_matrix: [553.47, 553.40, 346.65, 216.52]\n"
         "    distortion_coeffs: [-0.0949, 0.1497, -0.00084, 0.00030]\n    distortion_model: radtan\n"
         "    resolution: [640, 480]\n")
@@ -164,20 +179,18 @@ def gen_aedat4(path: Path, n_events: int) -> None:
 
     cfg = dv.io.MonoCameraWriter.EventOnlyConfig("DAVIS346", (346, 260))
     cfg.addPoseStream("poses")
-    tmp = path.with_name(path.stem + ".tmp.aedat4")        # dv-processing aborts on another suffix
-    tmp.unlink(missing_ok=True)
-    w = dv.io.MonoCameraWriter(str(tmp), cfg)
-    next_pose = AEDAT4_T0_US
-    for x, y, t, p in _event_chunks(n_events, 346, 260, seed=3):
-        store = dv.EventStore()
-        for a, b, c, d in zip(t.tolist(), x.tolist(), y.tolist(), (p > 0).tolist()):
-            store.push_back(a, b, c, d)
-        w.writeEvents(store)
-        while next_pose <= int(t[-1]) + 10_000:
-            w.writePose(dv.Pose(next_pose, (0.1, -0.5, 0.4), (1.0, 0.0, 0.0, 0.0), "base", "cam"))
-            next_pose += 10_000
-    del w
-    os.replace(tmp, path)
+    with staged(path) as tmp:                              # tmp keeps the .aedat4 suffix dv-processing wants
+        w = dv.io.MonoCameraWriter(str(tmp), cfg)
+        next_pose = AEDAT4_T0_US
+        for x, y, t, p in _event_chunks(n_events, 346, 260, seed=3):
+            store = dv.EventStore()
+            for a, b, c, d in zip(t.tolist(), x.tolist(), y.tolist(), (p > 0).tolist()):
+                store.push_back(a, b, c, d)
+            w.writeEvents(store)
+            while next_pose <= int(t[-1]) + 10_000:
+                w.writePose(dv.Pose(next_pose, (0.1, -0.5, 0.4), (1.0, 0.0, 0.0, 0.0), "base", "cam"))
+                next_pose += 10_000
+        del w                                              # closes the file
 
 
 def gen_ros2(folder: Path, n_events: int, storage: str) -> None:
@@ -186,10 +199,8 @@ def gen_ros2(folder: Path, n_events: int, storage: str) -> None:
     from evpose.core.importers.epose_bag_cdr import dvs_typestore_ros2, encode_event_array_cdr, encode_pose_stamped_cdr
 
     ts = dvs_typestore_ros2()
-    tmp = folder.with_name(folder.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
     rng = np.random.default_rng(1)
-    with Writer(tmp, version=9, storage_plugin=StoragePlugin[storage]) as w:
+    with staged(folder) as tmp, Writer(tmp, version=9, storage_plugin=StoragePlugin[storage]) as w:
         ce = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=ts)
         cp = w.add_connection("/dvs/pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
         next_pose = T0_US
@@ -206,36 +217,34 @@ def gen_ros2(folder: Path, n_events: int, storage: str) -> None:
                 w.write(ce, int(tn[-1]), encode_event_array_cdr(x[sl], y[sl], tn, p[sl], stamp_ns=int(tn[-1])))
                 i += m
         w.write(cp, next_pose * 1000, encode_pose_stamped_cdr(next_pose * 1000, [0.1, -0.5, 0.4], [0, 0, 0, 1]))
-    shutil.rmtree(folder, ignore_errors=True)
-    os.replace(tmp, folder)
 
 
 def gen_prophesee(path: Path, n_events: int, version: str) -> None:
     import faery
     from faery.extension import dat, evt
 
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.unlink(missing_ok=True)
+    from evpose.core.data.atomic import atomic_write_text
+
     size = (1280, 720)
-    if version == "dat":
-        enc = dat.Encoder(path=str(tmp), version="dat2", event_type="cd", zero_t0=False, dimensions=size)
-    else:
-        enc = evt.Encoder(path=str(tmp), version=version, zero_t0=False, dimensions=size, enforce_monotonic=True)
     t_last = 0
-    with enc as e:
-        for x, y, t, p in _event_chunks(n_events, *size, seed=4):
-            a = np.zeros(len(t), faery.EVENTS_DTYPE)
-            a["t"], a["x"], a["y"], a["on"] = t - T0_US + SENSOR_T0_US, x, y, p > 0
-            t_last = int(a["t"][-1])
-            if version == "dat":
-                dat_dtype = np.dtype([("t", "=u8"), ("x", "=u2"), ("y", "=u2"), ("payload", "u1")])
-                e.write(a.astype(dat_dtype, casting="unsafe"))
-            else:
-                e.write({"events": a})
-    os.replace(tmp, path)
+    with staged(path) as tmp:
+        if version == "dat":
+            enc = dat.Encoder(path=str(tmp), version="dat2", event_type="cd", zero_t0=False, dimensions=size)
+        else:
+            enc = evt.Encoder(path=str(tmp), version=version, zero_t0=False, dimensions=size, enforce_monotonic=True)
+        with enc as e:
+            for x, y, t, p in _event_chunks(n_events, *size, seed=4):
+                a = np.zeros(len(t), faery.EVENTS_DTYPE)
+                a["t"], a["x"], a["y"], a["on"] = t - T0_US + SENSOR_T0_US, x, y, p > 0
+                t_last = int(a["t"][-1])
+                if version == "dat":
+                    dat_dtype = np.dtype([("t", "=u8"), ("x", "=u2"), ("y", "=u2"), ("payload", "u1")])
+                    e.write(a.astype(dat_dtype, casting="unsafe"))
+                else:
+                    e.write({"events": a})
     lines = ["t_us,x,y,z,qx,qy,qz,qw"] + [f"{k},0.1,-0.5,0.4,0,0,0,1" for k in range(0, t_last + 20_000, 10_000)]
-    path.with_suffix(".csv").write_text("\n".join(lines) + "\n")
-    (path.parent / "prophesee_cam.json").write_text(json.dumps(
+    atomic_write_text(path.with_suffix(".csv"), "\n".join(lines) + "\n")
+    atomic_write_text(path.parent / "prophesee_cam.json", json.dumps(
         {"K": [[1700.0, 0, 640.0], [0, 1700.0, 360.0], [0, 0, 1]], "dist": [], "width": 1280, "height": 720}))
 
 
@@ -303,7 +312,11 @@ def child(task: str, arg: str, extra: str) -> dict:
     _heavy()
     import resource
 
-    out = DATA / f"out_{os.getpid()}"
+    # an import writes into a folder this run creates (never a name another run or a dead process may hold),
+    # removed by the task's own `finally`
+    writes = task.startswith("import-new:") or task in ("import-bag", "import-dsec", "link-dsec", "naive-dsec")
+    stage = Path(tempfile.mkdtemp(prefix=".import-", dir=DATA)) if writes else None
+    out = stage / "scene" if writes else None
     # one-time imports happen before the clock starts: the table measures the work per file
     import h5py  # noqa: F401
     import hdf5plugin  # noqa: F401
@@ -329,7 +342,7 @@ def child(task: str, arg: str, extra: str) -> dict:
         try:
             res["n"] = int(import_scene(fmt, import_sources(fmt, Path(arg)), out, log=None)["n_events"])
         finally:
-            shutil.rmtree(out, ignore_errors=True)
+            shutil.rmtree(stage, ignore_errors=True)
     elif task in ("dv-decode", "faery-decode", "rosbags-ros2"):
         res["n"] = decode_only(task, arg, int(extra or 0))
     elif task == "gen-bag":
@@ -348,7 +361,7 @@ def child(task: str, arg: str, extra: str) -> dict:
                                  events_mode="copy" if task == "import-dsec" else "link")
             res["n"] = int(r["n_events"])
         finally:
-            shutil.rmtree(out, ignore_errors=True)
+            shutil.rmtree(stage, ignore_errors=True)
     elif task == "rosbags-bag":
         from rosbags.rosbag1 import Reader
 
@@ -386,7 +399,7 @@ def child(task: str, arg: str, extra: str) -> dict:
                     res["n"] = len(a)
                 g.create_dataset("t_offset", data=f["t_offset"][()])
         finally:
-            shutil.rmtree(out, ignore_errors=True)
+            shutil.rmtree(stage, ignore_errors=True)
     res["seconds"] = time.perf_counter() - t0
     # the AEDAT4 import reads in a child process: its peak counts too (the largest child; none for the others)
     res["maxrss_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
