@@ -2,12 +2,11 @@
 poses and hand-eye from edges (:mod:`evpose.core.align.joint_fit`)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from evpose.core.align.refine_result import RefineParams
+from evpose.core.align.refine_result import RefineParams, json_number
 
 __all__ = ["JOINT_SIGMAS_PX", "JointParams", "JointResult", "ObjectFit", "json_number"]
 
@@ -70,15 +69,9 @@ class ObjectFit:
 
     def to_json(self) -> dict:
         return {"dT_base": np.asarray(self.dT_base).tolist(), "dt_mm": float(self.dt_mm),
-                "dR_deg": float(self.dR_deg), "dt_std_mm": _num(self.std_mm), "dR_std_deg": _num(self.std_deg)}
+                "dR_deg": float(self.dR_deg), "dt_std_mm": json_number(self.std_mm), "dR_std_deg": json_number(self.std_deg)}
 
 
-def json_number(x):
-    """``x`` as a JSON number, None when missing or not finite (JSON has no inf / NaN)."""
-    return None if x is None or not math.isfinite(x) else float(x)
-
-
-_num = json_number
 
 
 @dataclass
@@ -118,15 +111,15 @@ class JointResult:
         """The result as the CLI prints it: clock at the top, then ``objects`` and ``hand_eye``."""
         p = self.params
         d = {"offset_us": int(self.offset_us), "skew_ppm": float(self.skew_ppm),
-             "offset_std_us": _num(self.offset_std_us), "skew_std_ppm": _num(self.skew_std_ppm),
+             "offset_std_us": json_number(self.offset_std_us), "skew_std_ppm": json_number(self.skew_std_ppm),
              "skew_estimated": bool(self.skew_estimated), "clock_fitted": bool(p.clock),
              "objects": {n: o.to_json() for n, o in self.objects.items()},
              "held": dict(self.held),
              "hand_eye": None if not p.hand_eye else {
                  "dT_cam": None if self.hand_eye_dT_cam is None else np.asarray(self.hand_eye_dT_cam).tolist(),
                  "dt_mm": float(self.hand_eye_dt_mm), "dR_deg": float(self.hand_eye_dR_deg),
-                 "dt_std_mm": _num(self.hand_eye_std_mm), "dR_std_deg": _num(self.hand_eye_std_deg)},
-             "objective_before": _num(self.objective_before), "objective_after": _num(self.objective_after),
+                 "dt_std_mm": json_number(self.hand_eye_std_mm), "dR_std_deg": json_number(self.hand_eye_std_deg)},
+             "objective_before": json_number(self.objective_before), "objective_after": json_number(self.objective_after),
              "n_windows": int(self.n_windows), "iterations": int(self.iterations),
              "runtime_s": float(self.runtime_s), "accepted": bool(self.accepted), "reason": self.reason}
         return d

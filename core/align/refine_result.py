@@ -11,11 +11,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["DEFAULT_SIGMAS_PX", "RefineParams", "RefineResult"]
+__all__ = ["DEFAULT_SIGMAS_PX", "RefineParams", "RefineResult", "json_number"]
 
 #: Coarse-to-fine kernel widths (px at half DAVIS346 resolution, fx = 146; scaled by fx / 146).
 DEFAULT_SIGMAS_PX = (1.5, 0.8, 0.5, 0.3, 0.2, 0.12, 0.08)
 
+
+
+def json_number(x):
+    """``x`` as a JSON number, None when missing or not finite (JSON has no inf / NaN)."""
+    return None if x is None or not math.isfinite(x) else float(x)
 
 @dataclass(frozen=True)
 class RefineParams:
@@ -103,9 +108,7 @@ class RefineResult:
     trace: list = field(default_factory=list)
 
     def to_json(self) -> dict:
-        def num(x):
-            return None if x is None or not math.isfinite(x) else float(x)
-
+        num = json_number
         d = {"kind": self.kind, "object": self.object, "dR_deg": float(self.dR_deg), "dt_mm": float(self.dt_mm),
              "score_before": num(self.score_before), "score_after": num(self.score_after),
              "objective_before": num(self.objective_before), "objective_after": num(self.objective_after),

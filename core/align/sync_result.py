@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evpose.core.align.refine_result import json_number
 from evpose.core.data.clock import ClockModel
 
 __all__ = ["SLOW_STD_NOTE_US", "ClockEstimate", "SegmentOffset", "SyncResult", "unreliable"]
@@ -94,9 +95,7 @@ class SyncResult:
                           self.t_ref_us)
 
     def to_json(self, curve: bool = False) -> dict:
-        def num(x):
-            return None if x is None or not math.isfinite(x) else float(x)
-
+        num = json_number
         d = {"method": self.method, "offset_us": self.offset_us, "skew_ppm": num(self.skew_ppm),
              "confidence": float(self.confidence), "reliable": bool(self.reliable), "reason": self.reason,
              "runtime_s": float(self.runtime_s), "peak_ncc": num(self.peak), "second_peak_ncc": num(self.second_peak),
