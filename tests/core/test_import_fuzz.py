@@ -123,6 +123,13 @@ def _alarm(signum, frame):
 @given(target=st.integers(0, 10), how=corruption())
 def test_corrupted_inputs_fail_cleanly(bases, fmt, target, how):
     base, sources, targets, opts = bases[fmt]
+    check_corrupted_import(fmt, base, sources, targets, opts, target, how)
+
+
+def check_corrupted_import(fmt, base, sources, targets, opts, target, how, one_line=False) -> None:
+    """Import a copy of ``base`` whose file ``targets[target]`` is corrupted by ``how``: either one clear error naming
+    that file (a single line with ``one_line``) and no scene folder, or a complete, loadable scene; never a hang
+    (30 s alarm) or a leftover staging folder."""
     work = Path(tempfile.mkdtemp(prefix="fuzz-"))
     try:
         d = work / "in"
@@ -138,6 +145,7 @@ def test_corrupted_inputs_fail_cleanly(bases, fmt, target, how):
             msg = str(exc)
             assert victim.name in msg or str(victim.parent) in msg, (how, msg)
             assert not out.exists()
+            assert not one_line or "\n" not in msg, msg
         else:
             man = load_manifest(out)                                   # a complete, loadable scene
             with EventStore(man.events_path) as es:
