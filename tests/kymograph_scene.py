@@ -42,3 +42,13 @@ def moving_time_us(scene_dir: Path, t_first_us: int, t_last_us: int) -> int:
             best = (b - a, mid)
     assert best is not None, "no camera move far enough from the recording's ends"
     return int(best[1])
+
+
+def moving_session(tmp_path_factory):
+    """A :class:`~evpose.core.session.model.Session` on :func:`kymograph_scene`, at a time the object moves (close it)."""
+    from evpose.core.session.model import Session
+
+    path = kymograph_scene(tmp_path_factory)
+    s = Session.open(path)
+    s.set_time(moving_time_us(path, *s.time_range))
+    return s

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kymograph_scene import TRUE_OFFSET_US, kymograph_scene, moving_time_us
+from kymograph_scene import TRUE_OFFSET_US, moving_session
 
 from evpose.core.data.events import EventArray
 from evpose.core.session.kymograph import KymographComputer, KymographRequest, bin_events, link_segments
@@ -15,11 +15,7 @@ from evpose.core.session.kymograph_line import KymoLine, edge_crossings, labels_
 
 @pytest.fixture(scope="module")
 def kymo_session(tmp_path_factory):
-    from evpose.core.session.model import Session
-
-    path = kymograph_scene(tmp_path_factory)
-    s = Session.open(path)
-    s.set_time(moving_time_us(path, *s.time_range))
+    s = moving_session(tmp_path_factory)
     yield s
     s.close()
 
