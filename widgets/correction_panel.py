@@ -20,6 +20,8 @@ OFFSET_LIMIT_US = 10_000_000
 TRANSLATION_STEPS_MM = (0.1, 0.5, 1.0, 2.0, 5.0, 10.0)
 ROTATION_STEPS_DEG = (0.05, 0.1, 0.5, 1.0, 2.0, 5.0)
 OFFSET_STEPS_US = (10, 100, 1000, 5000)
+#: The pose readout where the trajectory has no camera pose at the view time (two lines: the panel is narrow).
+NO_CAMERA_POSE = "no camera pose at this time (outside the trajectory):\ncamera axes unknown; use object or base axes"
 FRAME_LABELS = {"camera": "camera (x right, y down, z forward)", "object": "object axes", "base": "robot base"}
 
 
@@ -273,8 +275,8 @@ class CorrectionPanel(QtWidgets.QWidget):
                 self.session.nudge_object(name, self.current_frame(), trans_mm=vec)
             else:
                 self.session.nudge_object(name, self.current_frame(), rot_deg=vec)
-        except ValueError as exc:               # camera axes where the trajectory has no camera pose
-            self.object_delta.setText(str(exc))
+        except ValueError:                      # camera axes where the trajectory has no camera pose
+            self.object_delta.setText(NO_CAMERA_POSE)
 
     def _nudge_hand_eye(self, kind: str, axis: int, sign: int) -> None:
         vec = np.zeros(3)
@@ -328,7 +330,7 @@ class CorrectionPanel(QtWidgets.QWidget):
             return f"no readout: {exc}"          # views report it too); the panel stays usable
         T_bc = self.session.current_T_base_cam()
         if T_bc is None and self.current_frame() == "camera":
-            return "no camera pose at this time (outside the trajectory):\nno camera axes to read the correction in"
+            return NO_CAMERA_POSE
         angle, rv, moved = pose_change(scene.corrections.object_delta(name), scene.manifest.object(name).T_base_obj,
                                        centre, self.current_frame(), np.eye(4) if T_bc is None else T_bc)
         dist = np.linalg.norm(moved)
