@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-__all__ = ["MAX_PEAK_HWHM_FRACTION", "MAX_SECOND_PEAK_RATIO", "MIN_PEAK_NCC", "ambiguity", "confidence",
+__all__ = ["MAX_PEAK_HWHM_FRACTION", "MAX_SECOND_PEAK_RATIO", "MIN_PEAK_NCC", "ambiguity", "confidence", "parabolic_offset",
            "peak_analysis"]
 
 #: Thresholds of the reliability decision (see :func:`evpose.core.align.estimate.estimate_clock`).
@@ -19,7 +19,9 @@ MAX_SECOND_PEAK_RATIO = 0.85  # second-best peak above this fraction of the best
 MAX_PEAK_HWHM_FRACTION = 0.8  # main lobe half width above this fraction of the range: "flat correlation"
 
 
-def _parabolic(y_m: float, y0: float, y_p: float) -> float:
+def parabolic_offset(y_m: float, y0: float, y_p: float) -> float:
+    """Offset in [-0.5, 0.5] samples of the vertex of the parabola through three samples around a maximum (0
+    when they do not bend down)."""
     den = y_m - 2.0 * y0 + y_p
     if not (np.isfinite(den) and den < 0):
         return 0.0
@@ -42,7 +44,7 @@ def peak_analysis(ncc: np.ndarray, i_lo: int, i_hi: int):
         # the best match overall is outside the search range: also report the best inside
         return i, 0.0, float(c[i]), float("nan"), float("nan"), True, float("nan")
     peak = float(c[i])
-    delta = _parabolic(c[i - 1], peak, c[i + 1])
+    delta = parabolic_offset(c[i - 1], peak, c[i + 1])
     finite = c[np.isfinite(c)]
     base = float(np.median(finite))
     half = 0.5 * (peak + base)

@@ -218,14 +218,14 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
 
 
 def _covariance(fit: _Fit, sigma: float, beta: float, lay: Layout, p: JointParams, total: np.ndarray):
-    """Standard errors at the final state (finest width): ``(cov, data)``."""
+    """The parameter covariance at the final state (finest width), None without data."""
     contours = fit.look(fit.state, previous=fit.contours)
     d = fit.data(fit.state, contours, sigma)
     if d is None:
-        return None, None
+        return None
     J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
     rows = d.slices(len(fit.state.T_bo))
-    return sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, _prior(lay, p, fit.radii, len(d.s))), (d, J)
+    return sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, _prior(lay, p, fit.radii, len(d.s)))
 
 
 def _choose(scene, p: JointParams, clock, names, windows):
@@ -323,7 +323,7 @@ def _final_covariance(fit: _Fit, result: JointResult, params: JointParams, names
     shift = totals[-1] - totals[-2] if len(totals) >= 2 else np.zeros_like(total)
 
     def cov_at(layout):
-        cov, _ = _covariance(fit, sigma, beta, layout, params, total)
+        cov = _covariance(fit, sigma, beta, layout, params, total)
         return None if cov is None else cov + np.diag(shift ** 2)
 
     cov = cov_at(lay)

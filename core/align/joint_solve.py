@@ -43,12 +43,6 @@ class Layout:
     def cols(self, i: int) -> np.ndarray:
         return np.r_[0:8, 8 + 6 * i: 14 + 6 * i]
 
-    def with_fixed(self, index: int) -> "Layout":
-        out = Layout.__new__(Layout)
-        out.n_objects, out.n, out.free = self.n_objects, self.n, self.free.copy()
-        out.free[index] = False
-        return out
-
 
 def kernel_derivs(s: np.ndarray, outer: np.ndarray, sigma: float, beta: float, ridge: float = 1.0):
     """``K(s)``, ``K'(s)`` and the Welsch weight ``ridge * g(s) / sigma^2`` of the edge kernel."""

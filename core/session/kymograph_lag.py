@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evpose.core.align.correlation_peak import parabolic_offset
+
 #: Lags are searched within +- this many ms (a 47 ms wrong clock must be found).
 MAX_LAG_MS = 80.0
 #: Lag grid step, ms.
@@ -132,10 +134,7 @@ def parabolic(lags_ms: np.ndarray, score: np.ndarray, i: int) -> float:
     """The lag of sample ``i`` refined by a parabola through it and its neighbours."""
     lag = float(lags_ms[i])
     if 0 < i < len(score) - 1:
-        a, b, c = score[i - 1], score[i], score[i + 1]
-        den = a - 2 * b + c
-        if den < 0:
-            lag += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) * float(lags_ms[1] - lags_ms[0])
+        lag += parabolic_offset(score[i - 1], score[i], score[i + 1]) * float(lags_ms[1] - lags_ms[0])
     return lag
 
 

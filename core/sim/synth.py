@@ -156,14 +156,9 @@ def _write_scene(tmp: Path, out_dir: Path, cfg: SynthConfig, world: _World) -> d
 def _with_mounting_error(traj, E: np.ndarray):
     """The trajectory ``T_base_cam @ E`` (a camera mounted off by ``E``, camera frame): the correction that
     undoes it is ``dT_cam = inv(E)``."""
-    from scipy.spatial.transform import Rotation
-
     from evpose.core.data.trajectory import Trajectory
 
-    R = Rotation.from_quat(traj.quats_xyzw).as_matrix()
-    pos = traj.positions_m + np.einsum("nij,j->ni", R, E[:3, 3])
-    q = Rotation.from_matrix(R @ E[:3, :3]).as_quat()
-    return Trajectory(traj.t_us.copy(), pos, q, traj.source, max_gap_us=traj.max_gap_us)
+    return Trajectory.from_T(traj.t_us.copy(), traj.T() @ E, source=traj.source, max_gap_us=traj.max_gap_us)
 
 
 def _ground_truth(cfg: SynthConfig, world: _World, injected: dict, n_events: int, frames_rendered: int,
