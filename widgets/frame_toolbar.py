@@ -188,7 +188,7 @@ class FrameToolbar(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ session -> controls
     def _on_session(self, change: Change) -> None:
-        if change.kind in ("view", "time"):
+        if change.kind == "view":           # nothing shown here depends on the time: no work per scrub step
             self.refresh()
 
     def refresh(self) -> None:

@@ -221,8 +221,10 @@ class KymographView(QtWidgets.QWidget):
         return "\n".join(rows)
 
     def _on_line(self, line, final: bool) -> None:
+        """The preview draws the line while it is dragged; the kymograph is asked for once, on release."""
         self._user_line = tuple(float(c) for c in line)
-        self.lineChanged.emit()
+        if final:
+            self.lineChanged.emit()
 
     def _on_session(self, change: Change) -> None:
         if not self._alive() or change.kind != "view":

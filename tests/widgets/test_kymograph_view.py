@@ -119,3 +119,14 @@ def test_not_measurable_readout(qtbot, view, kymo_session):
     d = KymographComputer().kymograph(KymographRequest(kymo_session.request(), (2.0, 2.0, 12.0, 2.0)))
     view.set_data(d)
     assert view.shift_ms is None and "not measurable" in view.readout.text()
+
+
+def test_drawing_a_line_asks_for_one_kymograph_on_release(view):
+    """While the line is dragged only the preview follows; the owner computes once the mouse is released."""
+    asked = []
+    view.lineChanged.connect(lambda: asked.append(view.line))
+    for x in (40.0, 50.0, 60.0):
+        view.preview._drag((10.0, 20.0, x, 80.0), False)
+    assert asked == []
+    view.preview._drag((10.0, 20.0, 70.0, 80.0), True)
+    assert len(asked) == 1 and view.line == pytest.approx((10.0, 20.0, 70.0, 80.0))
