@@ -385,10 +385,12 @@ class MainWindow(QtWidgets.QMainWindow):
     def _on_session(self, change: Change) -> None:
         self.score_row.on_change(change)     # a clock or pose change: scores stale at once, then recomputed
         if not (change.kind == "view" and change.fields and change.fields <= DISPLAY_ONLY_FIELDS):
-            self.request_frame()             # every kind of session change shows in the frame (display options:
-                                             # the frame view redraws what it has, nothing to compute)
+            # every other kind of session change shows in the views; display options (contrast, opacities,
+            # selected-only, outlines-only) are redrawn by the frame view from what it has, and neither the
+            # space-time view nor the kymograph uses them: nothing to compute
+            self.request_frame()
+            self._spacetime_timer.start()
         self.memory.poke()
-        self._spacetime_timer.start()
         if change.kind == "view":
             self._sync_view_actions()
 

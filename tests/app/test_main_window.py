@@ -211,3 +211,18 @@ def test_clock_and_poses_from_edges_is_one_undo_step(qtbot, window, scene_copy):
     assert abs(edges.offset_us - gt["clock"]["offset_us"]) < 800
     window.actions_by_name["undo"].trigger()
     assert s.scene.clock.offset_us == gt["clock"]["offset_us"] + 800 and not s.scene.corrections.object_deltas
+
+
+def test_display_options_recompute_nothing(qtbot, window, scene_copy):
+    """Contrast, opacities, selected-only and outlines-only are drawn from what the views have: no frame, space-time
+    or kymograph request (each re-reads events); a time step still asks for all of them."""
+    s = window.controller.open_scene(scene_copy)
+    timer = window._spacetime_timer
+    qtbot.waitUntil(lambda: not timer.isActive() and window.frame_up_to_date(), timeout=30_000)
+    frames = []
+    window.events_worker.submit = lambda req, real=window.events_worker.submit: (frames.append(req), real(req))[1]
+    s.set_view_option(contrast=2.0, event_opacity=0.5, mask_alpha=0.6)
+    s.set_view_option(selected_only=True, outline_only=True)
+    assert not timer.isActive() and frames == []
+    s.set_time(s.view.t_us + 20_000)
+    assert timer.isActive() and len(frames) == 1
