@@ -49,33 +49,30 @@ import argparse
 import contextlib
 import json
 import os
-import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
+from synth_scenes import DATA, run_dir  # bench/ is the script's folder
+
 ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(__file__).resolve().parent / ".data"
 RATE = 2_000_000          # events per second of recording
 T0_US = 1_600_000_000_000_000
 
 
 @contextlib.contextmanager
 def staged(path: Path):
-    """Yield a path to write ``path``'s content to, in a folder this run creates beside it (``mkdtemp``: a name no
-    one else has, on the same file system); on success it is renamed to ``path``, which must not exist. The
-    folder is removed either way: the only files deleted are those this run made in it."""
-    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}-", dir=path.parent))
-    try:
+    """Yield a path to write ``path``'s content to, in a folder this run creates beside it
+    (:func:`synth_scenes.run_dir`: a name no one else has, on the same file system); on success it is renamed to
+    ``path``, which must not exist. The folder is removed either way: the only files deleted are those this run
+    made in it."""
+    with run_dir(f".{path.name}", path.parent) as stage:
         tmp = stage / path.name           # the same name: writers that insist on a suffix get it
         yield tmp
         if os.path.lexists(path):
             raise FileExistsError(f"{path}: exists; not replaced")
         os.rename(tmp, path)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
 
 
 def _heavy():
@@ -309,14 +306,18 @@ def decode_only(task: str, arg: str, limit: int) -> int:
 
 # ------------------------------------------------------------------------------------------------ children
 def child(task: str, arg: str, extra: str) -> dict:
+    """Run one task; an import writes into a folder this run creates (:func:`synth_scenes.run_dir`: never a name
+    another run or a dead process may hold), removed after the timing."""
+    writes = task.startswith("import-new:") or task in ("import-bag", "import-dsec", "link-dsec", "naive-dsec")
+    with contextlib.ExitStack() as stack:
+        out = stack.enter_context(run_dir(".import")) / "scene" if writes else None
+        return _timed_task(task, arg, extra, out)
+
+
+def _timed_task(task: str, arg: str, extra: str, out: Path | None) -> dict:
     _heavy()
     import resource
 
-    # an import writes into a folder this run creates (never a name another run or a dead process may hold),
-    # removed by the task's own `finally`
-    writes = task.startswith("import-new:") or task in ("import-bag", "import-dsec", "link-dsec", "naive-dsec")
-    stage = Path(tempfile.mkdtemp(prefix=".import-", dir=DATA)) if writes else None
-    out = stage / "scene" if writes else None
     # one-time imports happen before the clock starts: the table measures the work per file
     import h5py  # noqa: F401
     import hdf5plugin  # noqa: F401
@@ -339,10 +340,7 @@ def child(task: str, arg: str, extra: str) -> dict:
 
         fmt = task.split(":", 1)[1]
         t0 = time.perf_counter()
-        try:
-            res["n"] = int(import_scene(fmt, import_sources(fmt, Path(arg)), out, log=None)["n_events"])
-        finally:
-            shutil.rmtree(stage, ignore_errors=True)
+        res["n"] = int(import_scene(fmt, import_sources(fmt, Path(arg)), out, log=None)["n_events"])
     elif task in ("dv-decode", "faery-decode", "rosbags-ros2"):
         res["n"] = decode_only(task, arg, int(extra or 0))
     elif task == "gen-bag":
@@ -352,16 +350,13 @@ def child(task: str, arg: str, extra: str) -> dict:
     elif task in ("import-bag", "import-dsec", "link-dsec"):
         from evpose.core.importers import import_scene
 
-        try:
-            if task == "import-bag":
-                r = import_scene("epose-bag", [arg], out)
-            else:
-                d = Path(arg)
-                r = import_scene("dsec", [d / "events.h5", d / "poses.txt", d / "cam_to_cam.yaml"], out,
-                                 events_mode="copy" if task == "import-dsec" else "link")
-            res["n"] = int(r["n_events"])
-        finally:
-            shutil.rmtree(stage, ignore_errors=True)
+        if task == "import-bag":
+            r = import_scene("epose-bag", [arg], out)
+        else:
+            d = Path(arg)
+            r = import_scene("dsec", [d / "events.h5", d / "poses.txt", d / "cam_to_cam.yaml"], out,
+                             events_mode="copy" if task == "import-dsec" else "link")
+        res["n"] = int(r["n_events"])
     elif task == "rosbags-bag":
         from rosbags.rosbag1 import Reader
 
@@ -391,15 +386,12 @@ def child(task: str, arg: str, extra: str) -> dict:
 
         comp = dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
         out.mkdir(parents=True)
-        try:
-            with h5py.File(Path(arg) / "events.h5", "r") as f, h5py.File(out / "events.h5", "w") as g:
-                for k in "xytp":
-                    a = f[f"events/{k}"][:]
-                    g.create_dataset(f"events/{k}", data=a, chunks=(1 << 15,), **comp)
-                    res["n"] = len(a)
-                g.create_dataset("t_offset", data=f["t_offset"][()])
-        finally:
-            shutil.rmtree(stage, ignore_errors=True)
+        with h5py.File(Path(arg) / "events.h5", "r") as f, h5py.File(out / "events.h5", "w") as g:
+            for k in "xytp":
+                a = f[f"events/{k}"][:]
+                g.create_dataset(f"events/{k}", data=a, chunks=(1 << 15,), **comp)
+                res["n"] = len(a)
+            g.create_dataset("t_offset", data=f["t_offset"][()])
     res["seconds"] = time.perf_counter() - t0
     # the AEDAT4 import reads in a child process: its peak counts too (the largest child; none for the others)
     res["maxrss_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -226,7 +226,18 @@ class Sampler(threading.Thread):
 
 # ------------------------------------------------------------------------------------------------ the child
 def child(args) -> dict:
-    """One scripted session in this process (the child); returns its figures."""
+    """One scripted session in this process (the child); returns its figures. The window's settings go to a private
+    folder this run creates and removes (also when the session fails)."""
+    import shutil
+
+    settings_dir = tempfile.mkdtemp(prefix="bench_memory_")
+    try:
+        return _session(args, settings_dir)
+    finally:
+        shutil.rmtree(settings_dir, ignore_errors=True)
+
+
+def _session(args, settings_dir: str) -> dict:
     sampler = Sampler(args.sample_s)
     sampler.start()
     sampler.mark("python + bench imports")
@@ -261,8 +272,7 @@ def child(args) -> dict:
     sampler.mark("imports (Qt, app, core)")
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
     _warm_up_in_background()
-    tmp = tempfile.mkdtemp(prefix="bench_memory_")
-    window = MainWindow(Settings(QtCore.QSettings(str(Path(tmp) / "settings.ini"), QtCore.QSettings.IniFormat)))
+    window = MainWindow(Settings(QtCore.QSettings(str(Path(settings_dir) / "settings.ini"), QtCore.QSettings.IniFormat)))
     window.modal_dialogs = False
     window.auto_answer["Unsaved corrections"] = 0x00800000      # Discard at the end
     window.show()
@@ -405,9 +415,7 @@ def child(args) -> dict:
         res["tracemalloc_top"] = [(s.size / 2**20, s.count, [f"{f.filename.replace(code, '')}:{f.lineno}"
                                                             for f in s.traceback[:4]]) for s in stats]
     window.close()
-    import shutil
-
-    shutil.rmtree(tmp, ignore_errors=True)          # the private settings folder this run made
+    window.settings.qs.sync()     # written now (closing saves the layout): nothing left to write into the removed folder
     return res
 
 
