@@ -84,13 +84,9 @@ def joint_scene_jobs(quick: bool, offsets: list, models_dir, render: dict = JOIN
 # ---------------------------------------------------------------------------- errors
 def pose_errors(scene, gt, poses: dict) -> list[tuple[float, float]]:
     """(centre displacement mm, rotation deg) per object of ``poses`` (name -> T_base_obj) against the truth."""
-    out = []
-    for n, T in poses.items():
-        Tt = np.asarray(gt["objects"][n]["T_base_obj"])
-        c = scene.raster_model(n).bbox_center_m
-        dt = np.linalg.norm((T[:3, :3] @ c + T[:3, 3]) - (Tt[:3, :3] @ c + Tt[:3, 3])) * 1e3
-        out.append((float(dt), float(np.degrees(np.linalg.norm(pose_error(T, Tt)[1])))))
-    return out
+    from accuracy import obj_errors       # imported here: accuracy.py imports this module in its joint section
+
+    return [obj_errors(scene, n, T, gt) for n, T in poses.items()]
 
 
 def _clock_err(offset_us, gt) -> float | None:
