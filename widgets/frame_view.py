@@ -38,24 +38,7 @@ from evpose.widgets.binding import connect_view
 from evpose.widgets.frame_drag import DRAG_HELP, FrameViewBox, pixel_of
 from evpose.widgets.frame_toolbar import FrameToolbar
 from evpose.widgets.labels import Readout
-
-
-def _polylines_to_nan_separated(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Concatenate polylines with NaN breaks for one ``PlotCurveItem(connect='finite')``."""
-    if not polys:
-        return np.zeros(0), np.zeros(0)
-    parts = []
-    for p in polys:
-        parts.append(p[:, :2])
-        parts.append(np.full((1, 2), np.nan))
-    xy = np.concatenate(parts)
-    return xy[:, 0], xy[:, 1]
-
-
-def _segments_to_pairs(segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(M, 2, 2) segments -> x, y arrays for ``PlotCurveItem(connect='pairs')``."""
-    flat = np.asarray(segs, dtype=np.float64).reshape(-1, 2)
-    return flat[:, 0], flat[:, 1]
+from evpose.widgets.plot_data import polylines_xy, segments_xy
 
 
 #: The badge on the frame while the overlays show proposed corrections (:meth:`Session.set_preview`).
@@ -267,8 +250,8 @@ class FrameView(QtWidgets.QWidget):
             contours = ov.contours
             if not contours and v.outline_only and f.labels.label_map is not None:
                 contours = mask_contours(f.labels.label_map == k)     # outlines even with contours off
-            items["contour"].setData(*_polylines_to_nan_separated(contours))
-            items["box"].setData(*_segments_to_pairs(ov.box_segments if full else np.zeros((0, 2, 2))))
+            items["contour"].setData(*polylines_xy(contours))
+            items["box"].setData(*segments_xy(ov.box_segments if full else np.zeros((0, 2, 2))))
             for a in range(3):
                 if full and len(ov.axes) == 3 and len(ov.axes[a]):
                     axes[a].append(ov.axes[a])
@@ -278,7 +261,7 @@ class FrameView(QtWidgets.QWidget):
             items["contour"].setPen(pg.mkPen(ov.color, width=width))
         for a in range(3):
             segs = np.concatenate(axes[a]) if axes[a] else np.zeros((0, 2, 2))
-            self.axis_items[a].setData(*_segments_to_pairs(segs))
+            self.axis_items[a].setData(*segments_xy(segs))
         self.center_item.setData(centers)
 
     def _on_session(self, change: Change) -> None:

@@ -10,21 +10,12 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore
 
+from evpose.widgets.plot_data import polylines_xy
+
 #: The line's look in the frame preview.
 LINE_PEN = {"color": (20, 150, 20), "width": 2}
 #: Lines shorter than this (px) are ignored (a click, not a drag).
 MIN_LINE_PX = 3.0
-
-
-def polylines_xy(polys) -> tuple[np.ndarray, np.ndarray]:
-    """Concatenate closed polylines (M, 2) with NaN breaks for one ``PlotCurveItem(connect='finite')``."""
-    if not polys:
-        return np.zeros(0), np.zeros(0)
-    parts = []
-    for p in polys:
-        parts += [np.asarray(p, np.float64), np.full((1, 2), np.nan)]
-    xy = np.concatenate(parts)
-    return xy[:, 0], xy[:, 1]
 
 
 class LineDrawViewBox(pg.ViewBox):

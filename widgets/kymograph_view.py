@@ -12,7 +12,6 @@ measured lag dashed, and the current time as a grey line.
 """
 from __future__ import annotations
 
-import numpy as np
 import pyqtgraph as pg
 import shiboken6
 from PySide6 import QtCore, QtWidgets
@@ -21,6 +20,7 @@ from evpose.core.signals import Change
 from evpose.widgets.binding import connect_view
 from evpose.widgets.kymograph_line import FramePreview
 from evpose.widgets.labels import Readout
+from evpose.widgets.plot_data import segments_xy
 
 SPAN_RANGE_MS = (20, 2_000)
 #: Clear lags are printed with one decimal; the ambiguity note when the peak does not stand out.
@@ -34,13 +34,6 @@ def lag_text(lag_ms: float | None, clear: bool = True) -> str:
         return "events vs track: not measurable here (an edge must move along the line, with events near it)"
     text = f"events vs track: {lag_ms:+.1f} ms \u2192 clock offset {-lag_ms:+.1f} ms aligns them"
     return text if clear else text + AMBIGUOUS_NOTE
-
-
-def segments_xy(segments: np.ndarray, dt_ms: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """(Q, 2, 2) ``[(s, t), (s, t)]`` segments -> x, y arrays for ``PlotCurveItem(connect='pairs')``, t moved by
-    ``dt_ms``."""
-    seg = np.asarray(segments, np.float64).reshape(-1, 2)
-    return seg[:, 0], seg[:, 1] + dt_ms
 
 
 class KymographView(QtWidgets.QWidget):
