@@ -15,6 +15,7 @@ from evpose.core.document.pose_edit import FRAMES, delta_components, pose_change
 from evpose.core.session.model import Session
 from evpose.core.signals import Change
 from evpose.widgets.binding import connect_view
+from evpose.widgets.labels import Readout
 
 OFFSET_LIMIT_US = 10_000_000
 TRANSLATION_STEPS_MM = (0.1, 0.5, 1.0, 2.0, 5.0, 10.0)
@@ -186,10 +187,8 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.object_nudges = _NudgeGrid()
         self.object_nudges.nudged.connect(lambda k, a, s: self.nudge_object(k, a, s))
         v.addWidget(self.object_nudges)
-        # two lines of constant height: the dock does not move when the numbers change
-        self.object_delta = QtWidgets.QLabel()
-        self.object_delta.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Fixed)
-        self.object_delta.setFixedHeight(2 * self.object_delta.fontMetrics().lineSpacing() + 4)
+        # two lines of constant size (it changes at every time step in camera axes): no relayout of the window
+        self.object_delta = Readout("centre moved 000.00 mm  [+000.00, +000.00, +000.00] mm", stretch=True, lines=2)
         self.object_delta.setToolTip("The object's correction, as the Refine dialog reports a change: how far its "
                                      "box centre moved and by how much it turned (about that centre); in "
                                      "brackets the components along the axes chosen above")

@@ -13,20 +13,21 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 
 class Readout(QtWidgets.QWidget):
-    """One line of text with a constant size hint, ``template`` wide.
+    """Text of ``lines`` lines (default one) with a constant size hint, ``template`` wide.
 
-    ``stretch=True``: the width follows the layout (the text is elided on the right when it does
-    not fit); otherwise the width is the template's. An optional second text
-    (:meth:`setRightText`) is drawn right-aligned on the same line and wins when space is short.
-    The context menu copies both.
+    ``stretch=True``: the width follows the layout (each line is elided on the right when it does
+    not fit); otherwise the width is the template's. The text's lines are separated by ``\n`` (lines
+    beyond ``lines`` are not shown). An optional second text (:meth:`setRightText`) is drawn
+    right-aligned on the (first) line and wins when space is short. The context menu copies both.
     """
 
     def __init__(self, template: str, text: str = "", parent=None, *, fixed_font: bool = False,
-                 stretch: bool = False):
+                 stretch: bool = False, lines: int = 1):
         super().__init__(parent)
         self._text = str(text)
         self._right = ""
         self._template = template
+        self._lines = max(int(lines), 1)
         if fixed_font:
             self.setFont(QtGui.QFontDatabase.systemFont(QtGui.QFontDatabase.FixedFont))
         self.setSizePolicy(QtWidgets.QSizePolicy.Ignored if stretch else QtWidgets.QSizePolicy.Fixed,
@@ -57,7 +58,8 @@ class Readout(QtWidgets.QWidget):
 
     def sizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
         fm = self.fontMetrics()
-        return QtCore.QSize(fm.horizontalAdvance(self._template) + 8, fm.height() + 6)
+        height = fm.height() + (self._lines - 1) * fm.lineSpacing() + 6
+        return QtCore.QSize(fm.horizontalAdvance(self._template) + 8, height)
 
     def minimumSizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
         return QtCore.QSize(40, self.sizeHint().height())
@@ -72,7 +74,13 @@ class Readout(QtWidgets.QWidget):
             right = fm.elidedText(self._right, QtCore.Qt.ElideLeft, r.width())
             p.drawText(r, QtCore.Qt.AlignRight | QtCore.Qt.AlignVCenter, right)
             left_w = max(r.width() - fm.horizontalAdvance(right) - fm.horizontalAdvance("   "), 0)
-        if left_w > 0:
-            p.drawText(r.adjusted(0, 0, left_w - r.width(), 0), QtCore.Qt.AlignLeft | QtCore.Qt.AlignVCenter,
-                       fm.elidedText(self._text, QtCore.Qt.ElideRight, left_w))
+        rows = self._text.split("\n")[:self._lines]
+        h = fm.lineSpacing()
+        top = r.top() + (r.height() - (fm.height() + (len(rows) - 1) * h)) // 2
+        for k, row in enumerate(rows):
+            w = left_w if k == 0 else r.width()
+            if w > 0:
+                line = QtCore.QRect(r.left(), top + k * h, w, fm.height())
+                p.drawText(line, QtCore.Qt.AlignLeft | QtCore.Qt.AlignVCenter,
+                           fm.elidedText(row, QtCore.Qt.ElideRight, w))
         p.end()
