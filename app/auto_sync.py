@@ -22,6 +22,7 @@ import time
 from dataclasses import dataclass
 
 from evpose.core.data.events import Cancelled
+from evpose.core.document.review import clock_in_effect
 
 __all__ = ["EDGE_SETUP_SHARE", "RATE_SHARE", "Proposal", "StagedProgress", "apply_proposal", "preview_corrections",
            "run_auto", "run_edges"]
@@ -117,10 +118,6 @@ class StagedProgress:
         self._emit(start + (1.0 - start) * edge_f, f"edges, {stage}: {message}")
 
 
-def _clock_in_effect(scene) -> tuple:
-    return int(scene.clock.offset_us), float(scene.clock.skew_ppm)
-
-
 def run_auto(scene, n_windows: int = 24, *, progress=None, cancel=None) -> Proposal:
     """Auto on ``scene`` (a snapshot): the rate stage, then clock and poses jointly from edges (see the module)."""
     from evpose.core.align.estimate import sync_scene
@@ -129,7 +126,7 @@ def run_auto(scene, n_windows: int = 24, *, progress=None, cancel=None) -> Propo
 
     t0 = time.perf_counter()
     bar = StagedProgress(progress or (lambda f, m: None), len(JOINT_SIGMAS_PX), JointParams().outer_per_level)
-    p = Proposal("auto", "Automatic estimate", "automatic clock and poses (rate, then edges)", _clock_in_effect(scene))
+    p = Proposal("auto", "Automatic estimate", "automatic clock and poses (rate, then edges)", clock_in_effect(scene))
     rate = p.rate = sync_scene(scene, progress=bar.rate, cancel=cancel)
     if not rate.reliable or rate.offset_us is None:
         p.reason = f"no reliable clock from the event rate: {rate.reason or 'no clear peak'}; edges not run"
@@ -161,7 +158,7 @@ def run_edges(scene, params, kind: str, title: str, undo_text: str, *, progress=
     t0 = time.perf_counter()
     levels = len(params.sigmas_px or JOINT_SIGMAS_PX)
     bar = StagedProgress(progress or (lambda f, m: None), levels, params.outer_per_level, with_rate=False)
-    p = Proposal(kind, title, undo_text, _clock_in_effect(scene))
+    p = Proposal(kind, title, undo_text, clock_in_effect(scene))
     bar.edge_setup()
     j = p.joint = refine_joint(scene, params=params, progress=bar.edges, cancel=cancel)
     if not j.accepted:

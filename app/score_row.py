@@ -15,6 +15,7 @@ import numpy as np
 from PySide6 import QtCore
 
 from evpose.app.workers import Job
+from evpose.core.document.review import mark_state
 from evpose.core.signals import Change
 
 __all__ = ["RECOMPUTE_DELAY_MS", "ScoreRowUpdater", "document_key"]
@@ -25,12 +26,10 @@ RECOMPUTE_DELAY_MS = 300
 SCORE_FIELDS = frozenset({"clock", "hand_eye"})
 
 
-def document_key(scene) -> tuple:
-    """What the scores depend on in the document: clock in effect, hand-eye and object corrections."""
-    c = scene.corrections
-    clock = scene.clock
-    return (int(clock.offset_us), float(clock.skew_ppm), c.hand_eye_delta.tobytes(),
-            tuple(sorted((n, np.asarray(d).tobytes()) for n, d in c.object_deltas.items())))
+def document_key(scene):
+    """What the scores (and an estimate's start) depend on in the document: the clock in effect and every object's
+    pose inputs, hand-eye included; the review marks' :func:`~evpose.core.document.review.mark_state`."""
+    return mark_state(scene)
 
 
 def _scores_change(change: Change) -> bool:
