@@ -349,6 +349,8 @@ def _final_covariance(fit: _Fit, result: JointResult, params: JointParams, names
 def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta, cov, lay: Layout, total):
     """Compare the fit with the start on the same windows at the finest width (fresh association each, the
     start's beta) and fill the result's totals and standard errors."""
+    end = fit.state
+    d1 = fit.data(end, fit.look(end), sigma)            # the end's contours: still cached from the covariance
     start = JointState(float(clock0.offset_us), float(clock0.skew_ppm), int(clock0.t_ref_us), np.eye(4),
                        [T.copy() for T in T_start])
     d0 = fit.data(start, fit.look(start), sigma)
@@ -357,8 +359,6 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
         return
     beta0 = _beta(d0.s, d0.outer, sigma)
     j0 = fit.value(d0, sigma, beta0)
-    end = fit.state
-    d1 = fit.data(end, fit.look(end), sigma)
     j1 = fit.value(d1, sigma, beta0)
     result.objective_before, result.objective_after = j0, j1
     if not (np.isfinite(j1) and (not np.isfinite(j0) or j1 > j0)):
