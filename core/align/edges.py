@@ -33,16 +33,17 @@ __all__ = ["EdgeSetup", "evaluate", "kernel"]
 
 class EdgeSetup:
     """What a refinement fits on, prepared once: the objects' raster models and mesh edges, the
-    event windows (:class:`~evpose.core.align.event_windows.EventWindow`) at ``clock``, and the
+    event windows (:class:`~evpose.core.align.event_windows.EventWindow`) at ``clock`` (their per-event camera
+    poses left to the caller with ``event_poses=False``), and the
     coarse-to-fine kernel widths ``sigmas`` (px of the scene camera)."""
 
-    def __init__(self, scene, names, windows, clock, p: RefineParams):
+    def __init__(self, scene, names, windows, clock, p: RefineParams, event_poses: bool = True):
         self.scene = scene
         self.models = [scene.raster_model(n) for n in names]
         self.edges = [MeshEdges(m) for m in self.models]
         self.raster = Rasterizer(scene.camera)
         self.clock = clock
-        self.wins = [EventWindow(scene, a, b, clock, p.max_events) for a, b in windows]
+        self.wins = [EventWindow(scene, a, b, clock, p.max_events, poses=event_poses) for a, b in windows]
         fx = float(scene.camera.K[0, 0])
         self.sigmas = tuple(p.sigmas_px) if p.sigmas_px else tuple(s * fx / 146.0 for s in DEFAULT_SIGMAS_PX)
         self.p = p

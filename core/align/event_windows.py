@@ -27,7 +27,7 @@ MIN_WINDOW_SHARE = 0.25
 class EventWindow:
     """Events of one window prepared for fitting: undistorted pixels, per-event camera pose."""
 
-    def __init__(self, scene, t0_us: int, t1_us: int, clock, max_events: int):
+    def __init__(self, scene, t0_us: int, t1_us: int, clock, max_events: int, poses: bool = True):
         self.t0, self.t1 = int(t0_us), int(t1_us)
         self.t_label = self.t0 + (self.t1 - self.t0) // 2
         ev = scene.events.window(self.t0, self.t1)
@@ -37,7 +37,8 @@ class EventWindow:
         cam = scene.camera
         uv = np.stack([ev.x, ev.y], axis=1).astype(np.float64)
         self.xy = cam.undistort_points(uv, K_new=cam.K) if len(ev) else np.zeros((0, 2))
-        self.set_clock(scene, clock)
+        if poses:            # otherwise the caller sets them (the joint fit: interpolated between knots)
+            self.set_clock(scene, clock)
 
     def set_clock(self, scene, clock):
         """Per-event camera poses (``T_cb``: camera <- base) and validity under ``clock``."""

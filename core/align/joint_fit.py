@@ -63,11 +63,13 @@ class _Fit:
     def __init__(self, scene, names, windows, state: JointState, p: JointParams):
         self.scene, self.names, self.p = scene, names, p
         self.view = HandEyeScene(scene, state.H)
-        self.setup = EdgeSetup(self.view, names, windows, state.clock(), p.refine_params())
+        # the windows' per-event camera poses come from poses() (knot-interpolated), not EdgeSetup's exact ones
+        self.setup = EdgeSetup(self.view, names, windows, state.clock(), p.refine_params(), event_poses=False)
         self.K = scene.camera.K
         self.state = state
         self.radii = np.array([me.radius for me in self.setup.edges])
         self._clock_key = None
+        self.poses(state)
         self.contours = None             # the last contours (their z-buffers serve the next look)
         self._looked = None              # (state, contours) of the last look
 
