@@ -8,7 +8,6 @@ either lag ("ambiguous"). The thresholds of that decision live here with the mea
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 __all__ = ["MAX_PEAK_HWHM_FRACTION", "MAX_SECOND_PEAK_RATIO", "MIN_PEAK_NCC", "ambiguity", "confidence", "parabolic_offset",
            "peak_analysis"]
@@ -34,6 +33,8 @@ def peak_analysis(ncc: np.ndarray, i_lo: int, i_hi: int):
     Returns ``(i_peak, delta, peak, second, hwhm_bins, at_edge, base)`` (``base``: the curve's median)
     or None when all NaN.
     """
+    from scipy import signal      # here, not at the top: the kymograph (GUI) imports parabolic_offset only
+
     c = np.where(np.isfinite(ncc), ncc, -np.inf)
     if not np.isfinite(c).any():
         return None
