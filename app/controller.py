@@ -16,6 +16,7 @@ import warnings
 from PySide6 import QtCore, QtWidgets
 
 from evpose.app.export_dialog import ExportDialog, export_done_box
+from evpose.app.restore_dialog import CHOICES as RESTORE_CHOICES
 from evpose.app.restore_dialog import TITLE as RESTORE_TITLE
 from evpose.app.restore_dialog import restore_question
 from evpose.app.workers import Job, progress_dialog
@@ -61,6 +62,7 @@ class Controller(QtCore.QObject):
     def _choose(self, title: str, text: str, options: list[tuple[str, str]], default: str) -> str:
         """A question with named answers: ``options`` are ``(key, button text)``; returns a key
         (unattended: ``window.auto_answer[title]`` or ``default``)."""
+        self.questions[title] = text
         if not getattr(self.window, "modal_dialogs", True):
             return self.window.auto_answer.get(title, default)
         box = QtWidgets.QMessageBox(QtWidgets.QMessageBox.Question, title, text, parent=self.window)
@@ -107,22 +109,29 @@ class Controller(QtCore.QObject):
         return session
 
     def _offer_journal(self, session: Session) -> None:
-        journal = session.pending_journal()
+        offer = session.pending_journal()
         if session.journal_problem:
             self.window.statusBar().showMessage(session.journal_problem, 15_000)
-        if journal is None:
+        if offer is None:
+            if session.journal_problem is None:
+                session.discard_journal()       # nothing in it the saved file lacks: it only held saved work
             return
-        text = restore_question(session.scene.corrections, journal, session.journal_path.stat().st_mtime,
-                                str(session.journal_path))
-        answer = self._ask(RESTORE_TITLE, text, QtWidgets.QMessageBox.Yes | QtWidgets.QMessageBox.No,
-                           QtWidgets.QMessageBox.Yes)
-        if answer == QtWidgets.QMessageBox.Yes:
-            conflicts = session.restore_journal(journal)
-            extra = ("; kept the autosaved value over the file's for " + ", ".join(c.field for c in conflicts)
-                     if conflicts else "")
-            self.window.statusBar().showMessage(f"restored autosaved corrections (Ctrl+Z undoes){extra}", 10_000)
+        text = restore_question(session.scene.corrections, offer, session.journal_path.stat().st_mtime)
+        if offer.conflicts:
+            answer = self._choose(RESTORE_TITLE, text, RESTORE_CHOICES, RESTORE_CHOICES[0][0])
         else:
+            yes = self._ask(RESTORE_TITLE, text, QtWidgets.QMessageBox.Yes | QtWidgets.QMessageBox.No,
+                            QtWidgets.QMessageBox.Yes) == QtWidgets.QMessageBox.Yes
+            answer = "keep_saved" if yes else "discard"
+        if answer == "discard":
             session.discard_journal()
+            return
+        if answer not in ("keep_saved", "take_autosaved"):      # closed the question: ask again next time
+            return
+        conflicts = session.restore_journal(offer, take_autosaved=answer == "take_autosaved")
+        kept = "autosaved" if answer == "take_autosaved" else "saved"
+        extra = f"; kept the {kept} value for " + ", ".join(c.field for c in conflicts) if conflicts else ""
+        self.window.statusBar().showMessage(f"restored autosaved corrections (Ctrl+Z undoes){extra}", 10_000)
 
     def save(self, prefer: str | None = None) -> bool:
         """Save through the revision check; a conflict with another program's save asks which

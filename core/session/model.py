@@ -81,9 +81,15 @@ class Session:
         return cls(Scene.open(path, defaults=defaults))
 
     def close(self) -> None:
+        """Close the scene; the autosave journal goes with it unless the document holds unsaved work (a session
+        closed with unsaved edits it was told to keep, as after a crash)."""
+        if not self.unsaved:
+            self.discard_journal()
         self.scene.close()
 
     def _history_changed(self, change: Change) -> None:
+        if self.journal_path.exists() and not self.unsaved:   # undo, redo or edits that cancel out came back to
+            self.discard_journal()      # the saved content: the journal holds no work (it would offer a past state)
         if change.kind == "document":
             self.changed.emit(change)
 
@@ -106,6 +112,12 @@ class Session:
     @property
     def dirty(self) -> bool:
         return not self.history.is_clean
+
+    @property
+    def unsaved(self) -> bool:
+        """Does the document's content differ from the saved file's (:func:`evpose.core.document.journal.unsaved`)?
+        Unlike :attr:`dirty` (the history's clean mark), False after edits that cancel out."""
+        return journal.unsaved(self.scene.corrections)
 
     # ------------------------------------------------------------------ view state
     def _set_view(self, kind: str = "view", **changes) -> None:
@@ -407,28 +419,33 @@ class Session:
         return self.scene.root / journal.JOURNAL_NAME
 
     def write_journal(self) -> Path | None:
-        """Autosave unsaved corrections beside the scene (atomic); nothing when clean."""
-        return journal.write_journal(self.journal_path, self.scene.corrections) if self.dirty else None
+        """Autosave unsaved corrections beside the scene (atomic). With no unsaved work (clean, or edits that
+        cancel out) nothing is written and a journal left from earlier in this session is removed."""
+        if self.dirty and self.unsaved:
+            return journal.write_journal(self.journal_path, self.scene.corrections)
+        self.discard_journal()
+        return None
 
-    def pending_journal(self) -> Corrections | None:
-        """Corrections autosaved by a session that did not save (e.g. after a crash), unless they
-        equal the document. A journal that cannot be read back whole is ignored and reported in
-        :attr:`journal_problem` (it stays on disk until the next save or discard)."""
+    def pending_journal(self) -> journal.JournalOffer | None:
+        """What a journal left by a session that did not save (e.g. a crash) holds that the document does not
+        (:func:`evpose.core.document.journal.journal_offer`), or None. A journal that cannot be read back whole
+        is ignored and reported in :attr:`journal_problem` (it stays on disk until the next save, discard or clean close)."""
         found, self.journal_problem = journal.read_journal(self.journal_path)
-        if found is None or found.canonical() == self.scene.corrections.canonical():
+        if found is None:
             return None
-        return found
+        return journal.journal_offer(found, self.scene.corrections, journal_mtime=_mtime(self.journal_path),
+                                     file_mtime=_mtime(self.scene.corrections_path), source=str(self.journal_path))
 
-    def restore_journal(self, autosaved: Corrections) -> list:
-        """Apply autosaved corrections as one undoable step, merged with what was saved since
-        (:func:`evpose.core.document.journal.restore_target`); returns the conflicts, where the
-        autosaved value was kept."""
-        target, conflicts = journal.restore_target(autosaved, self.scene.corrections, str(self.journal_path))
+    def restore_journal(self, offer: journal.JournalOffer, take_autosaved: bool = False) -> list:
+        """Apply a journal's edits as one undoable step, merged into what the file holds
+        (:meth:`evpose.core.document.journal.JournalOffer.target`: the saved value is kept where both changed a
+        field unless ``take_autosaved``); returns those conflicts."""
+        target = offer.target(take_autosaved)
         doc = self.scene.corrections
         with self.history.group("restore autosaved corrections"):
             for key in doc.differing_keys(target):
                 self.history.set(key, target.get(key))
-        return conflicts
+        return offer.conflicts
 
     def discard_journal(self) -> None:
         journal.discard_journal(self.journal_path)
@@ -440,3 +457,11 @@ class Session:
         corrections = self.scene.corrections if self.preview is None else self.preview
         # serials grow across sessions, so a late result of a closed scene is always stale
         return FrameRequest(self.scene.with_corrections(corrections.copy()), self.view, next(_SERIALS))
+
+
+def _mtime(path: Path) -> float | None:
+    """Modification time of ``path`` (s since the epoch), or None when it cannot be read."""
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return None

@@ -46,7 +46,7 @@ def test_journal_cut_at_every_byte_restores_whole_or_is_reported(scene_copy):
             reported += 1
         else:
             assert reader.journal_problem is None
-            assert j.canonical() == expected, k      # all or nothing
+            assert j.journal.canonical() == expected, k      # all or nothing
             restored += 1
     assert restored == 1 and reported == len(full)
     # the whole journal restores exactly, as one undo step
@@ -114,22 +114,72 @@ def test_damaged_journals_are_reported_not_raised(scene_copy, payload):
     assert s.journal_path.exists()                    # kept: it is only removed by a save or a discard
 
 
-def test_restore_merges_with_what_another_program_saved_since(scene_copy):
+def _save_elsewhere(scene_dir, **fields) -> None:
+    """Another program (a CLI ``--apply``) saves ``fields`` into the scene's ``corrections.json``."""
+    path = scene_dir / "corrections.json"
+    other = Corrections.load(path) if path.exists() else Corrections()
+    for key, value in fields.items():
+        other.set((key,), value)
+    other.save(path)
+
+
+def _age(path: Path, seconds: float) -> None:
+    st = path.stat()
+    os.utime(path, (st.st_atime - seconds, st.st_mtime - seconds))
+
+
+def test_restore_merges_and_keeps_what_another_program_saved_unless_told(scene_copy):
     s = _edited_session(scene_copy)                   # unsaved edits ...
     s.write_journal()                                 # ... autosaved, then the app dies
-    other = Corrections.load(scene_copy / "corrections.json") if (scene_copy / "corrections.json").exists() \
-        else Corrections()
-    other.set(("skew_ppm",), 4.25)                    # meanwhile a CLI saves another field
-    other.set(("offset_us",), 999)                    # ... and one the journal changed too
-    other.save(scene_copy / "corrections.json")
-    s2 = Session.open(scene_copy)
-    j = s2.pending_journal()
-    conflicts = s2.restore_journal(j)
-    doc = s2.scene.corrections
-    assert doc.skew_ppm == 4.25                       # the other program's edit is kept
-    assert doc.offset_us == 12_345                    # the autosaved edit wins where both changed
-    assert [c.field for c in conflicts] == ["clock.offset_us"]
-    assert "box" in doc.object_deltas and len(doc.reviews) == 2
+    journal, st = s.journal_path.read_bytes(), s.journal_path.stat()
+    _save_elsewhere(scene_copy, skew_ppm=4.25, offset_us=999)   # a CLI saves another field, and one the journal has
+    offer = Session.open(scene_copy).pending_journal()
+    assert [(c.field, c.local, c.disk) for c in offer.conflicts] == [("clock.offset_us", "12345 us", "999 us")]
+    assert offer.file_newer                           # saved after the autosave
+    for take, offset in ((False, 999), (True, 12_345)):
+        s.journal_path.write_bytes(journal)           # (the undo below removed it: back to the saved content)
+        os.utime(s.journal_path, ns=(st.st_atime_ns, st.st_mtime_ns))
+        s2 = Session.open(scene_copy)
+        assert s2.restore_journal(s2.pending_journal(), take_autosaved=take) == offer.conflicts
+        doc = s2.scene.corrections
+        assert doc.skew_ppm == 4.25                   # the other program's edit is kept
+        assert doc.offset_us == offset                # the saved value unless the autosaved one is asked for
+        assert "box" in doc.object_deltas and len(doc.reviews) == 2      # the journal's other edits restored
+        s2.history.undo()
+        assert doc.canonical() == Corrections.load(scene_copy / "corrections.json").canonical()
+
+
+def test_a_journal_the_saved_file_already_holds_is_not_offered(scene_copy):
+    """A save whose journal removal was lost (a crash between the two), or another program that saved the
+    same values: the journal holds nothing newer than the file."""
+    s = _edited_session(scene_copy)
+    s.write_journal()
+    kept = s.journal_path.read_bytes()
+    s.save()
+    assert not s.journal_path.exists()
+    s.journal_path.write_bytes(kept)                  # the removal did not happen
+    _age(s.journal_path, 60)
+    assert Session.open(scene_copy).pending_journal() is None
+
+
+def test_a_journal_older_than_the_file_is_offered_only_for_what_the_file_lacks(scene_copy):
+    s = Session.open(scene_copy)
+    s.set_offset_correction_us(5_000, mergeable=False)          # an intermediate state, autosaved
+    s.write_journal()
+    _age(s.journal_path, 60)
+    _save_elsewhere(scene_copy, offset_us=7_000)      # the file settled the offset later
+    assert Session.open(scene_copy).pending_journal() is None  # the journal's only edit is older than the file's
+    # the same journal written after the file was saved: the autosaved edit may be the newer one -- asked
+    _age(scene_copy / "corrections.json", 120)
+    offer = Session.open(scene_copy).pending_journal()
+    assert offer is not None and not offer.file_newer and [c.field for c in offer.conflicts] == ["clock.offset_us"]
+    assert offer.keep_saved.offset_us == 7_000 and offer.take_autosaved.offset_us == 5_000
+    # a journal edit the file does not have is offered whatever the times, without touching the file's
+    s.set_skew_correction_ppm(3.0, mergeable=False)
+    s.write_journal()
+    _age(s.journal_path, 600)
+    offer = Session.open(scene_copy).pending_journal()
+    assert offer.keep_saved.skew_ppm == 3.0 and offer.keep_saved.offset_us == 7_000 and offer.file_newer
 
 
 # ---------------------------------------------------------------------------- fsync / rename order

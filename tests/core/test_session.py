@@ -267,19 +267,53 @@ def test_journal_holds_unsaved_edits_and_restores_as_one_step(scene_copy):
     s2.close()
 
 
-def test_a_journal_equal_to_the_document_is_not_offered_and_discard_removes_it(session):
+def test_the_journal_lives_only_while_there_is_unsaved_work(session):
     session.set_offset_correction_us(1, mergeable=False)
-    session.write_journal()
+    assert session.write_journal() is not None
     session.save()
+    assert not session.journal_path.exists()               # a save removes it
     session.set_offset_correction_us(2, mergeable=False)
+    mark = session.add_review("verified")
     session.write_journal()
-    session.history.undo()                                 # back to the saved state
-    assert session.pending_journal() is not None           # the journal still differs (2)
+    session.history.undo()
+    assert session.journal_path.exists()                   # still unsaved work (the offset)
+    session.history.undo()                                 # back to the saved content
+    assert not session.journal_path.exists()
     session.history.redo()
-    assert session.pending_journal() is None               # equal to the document: nothing to offer
+    session.history.redo()
+    assert session.write_journal() is not None
+    session.set_offset_correction_us(1, mergeable=False)   # edits that cancel out: the document is dirty ...
+    session.remove_review(mark)                            # ... but equal to the file again
+    assert session.dirty
+    assert not session.unsaved and not session.journal_path.exists()
+    assert session.write_journal() is None                 # nothing to keep
+    session.set_offset_correction_us(3, mergeable=False)
+    session.write_journal()
     session.discard_journal()
     assert not session.journal_path.exists()
     session.discard_journal()                              # idempotent
+
+
+def test_closing_removes_the_journal_unless_work_is_unsaved(scene_copy):
+    s = Session.open(scene_copy)
+    s.set_offset_correction_us(5, mergeable=False)
+    s.write_journal()
+    s.close()                                              # unsaved work (a crash, or closed without a choice)
+    assert s.journal_path.exists()
+    s2 = Session.open(scene_copy)
+    s2.restore_journal(s2.pending_journal())
+    s2.save()
+    s2.set_offset_correction_us(6, mergeable=False)
+    s2.write_journal()
+    s2.set_offset_correction_us(5, mergeable=False)        # back to what is saved, not by undo
+    s2.close()
+    assert not s2.journal_path.exists()
+    s2.journal_path.write_text('{"format": "evpose-corrections/1", "clock": ')      # a damaged journal ...
+    s3 = Session.open(scene_copy)
+    assert s3.pending_journal() is None and s3.journal_problem
+    assert s3.journal_path.exists()                        # ... reported and kept while the session runs
+    s3.close()                                             # a clean quit ends it
+    assert not s3.journal_path.exists()
 
 
 # ---------------------------------------------------------------------------- another program's saves
