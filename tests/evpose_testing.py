@@ -52,7 +52,9 @@ def describe_file_differences(got: dict, ref: dict, root_got=None, root_ref=None
             if ia is None or ib is None or ia.shape != ib.shape:
                 note += ", undecodable or of another shape"
             elif np.array_equal(ia, ib):
-                note += ", same pixels (only the compressed stream differs)"
+                same_raw = _png_scanlines(a) == _png_scanlines(b)
+                note += (", same pixels and same scanlines (only the deflate stream differs)" if same_raw else
+                         ", same pixels but other scanline bytes (filter bytes or padding differ)")
             else:
                 diff = (ia != ib).reshape(ia.shape[0], ia.shape[1], -1)
                 where = np.argwhere(diff.any(axis=2))
@@ -62,3 +64,20 @@ def describe_file_differences(got: dict, ref: dict, root_got=None, root_ref=None
                          f"column {c}: {ia[r, c].tolist()} vs {ib[r, c].tolist()})")
         out.append(f"{name}: {note}")
     return out
+
+
+def _png_scanlines(png: bytes) -> bytes | None:
+    """The inflated IDAT data of a PNG (filter byte + row per scanline), or None when it cannot be read."""
+    import struct
+    import zlib
+
+    pos, idat = 8, b""
+    try:
+        while pos < len(png):
+            n, kind = struct.unpack(">I4s", png[pos:pos + 8])
+            if kind == b"IDAT":
+                idat += png[pos + 8:pos + 8 + n]
+            pos += 12 + n
+        return zlib.decompress(idat)
+    except (struct.error, zlib.error):
+        return None

@@ -4,15 +4,22 @@ Deterministic: equal inputs give byte-identical files (no dates, no random paddi
 export ends identical to an uninterrupted one. The bytes go to disk through
 :mod:`evpose.core.data.atomic`.
 
-Speed (issue 14: these run for every file of every window). PNG: the scanlines (filter byte 0, "none",
-then the raw row) are deflated by ISA-L (``isal``) and wrapped in the signature and the IHDR, IDAT and
-IEND chunks here. Measured on the images of a 5-object E-POSE export (real YCB meshes, DAVIS346; loaded
-machine, CPU per image): 8-bit gray 88 us / 2.8 kB against 323 us / 2.0 kB with ``cv2.imencode`` (zlib
-level 1, run-length strategy, no filter; zlib's own level 1 "default": 511 us / 3.4 kB, adaptive filters
-slower still), 1-bit masks 10 us against 283 us, RGB 0.46 ms / 36 kB against 2.1 ms / 31 kB. The decoded
-pixels are those of the input (tests/core/test_export_encode.py against OpenCV's and PIL's decoders). MAT:
-:func:`savemat_bytes` writes 2-D float64 / int64 arrays itself, byte for byte as ``scipy.io.savemat``
-(tested), and lets scipy write any other value: 0.2 instead of 2.7 ms for a 3-object window.
+PNG (issue 22): the scanlines (filter byte 0, "none", then the raw row) are deflated by zlib-ng (``zlib_ng``)
+with the run-length strategy ``Z_RLE`` and wrapped in the signature and the IHDR, IDAT and IEND chunks here.
+Run-length deflate looks only for repeats of the previous byte: no hash table, no search state, so its output
+is a function of the pixels alone, in any process. Before, ISA-L (``isal``, level 1) was used: in a Dask worker
+it wrote, for one three-channel image, a match of 171 zeros at distance 6266 where every fresh process writes
+distance 6268 (same pixels, same length, one byte of the stream different), in about one dataset export of
+eight -- its output depends on state beyond the input. Measured on the images of a 5-object E-POSE export
+(real YCB meshes, DAVIS346; CPU per image): 8-bit gray 95 us / 1.03 kB (ISA-L 52 us / 1.49 kB, the standard
+library's zlib with ``Z_RLE`` 218 us, libdeflate level 1 466 us), 1-bit masks 25 us / 0.29 kB (ISA-L 16 us),
+RGB 0.58 ms / 14.2 kB (ISA-L 0.31 ms / 18.1 kB, zlib ``Z_RLE`` 1.2 ms): +0.7 ms and 25 % smaller files per
+5-object window. The decoded pixels are those of the input (tests/core/test_export_encode.py against OpenCV's
+and PIL's decoders).
+
+MAT (issue 14: written for every window): :func:`savemat_bytes` writes 2-D float64 / int64 arrays itself, byte
+for byte as ``scipy.io.savemat`` (tested), and lets scipy write any other value: 0.2 instead of 2.7 ms for a
+3-object window.
 """
 from __future__ import annotations
 
@@ -24,9 +31,9 @@ import sys
 import zlib
 
 import numpy as np
-from isal import isal_zlib
+from zlib_ng import zlib_ng
 
-__all__ = ["json_text", "encode_png", "savemat_bytes", "PNG_LEVELS"]
+__all__ = ["json_text", "encode_png", "savemat_bytes"]
 
 
 def json_text(obj, indent=1) -> str:
@@ -37,8 +44,6 @@ def json_text(obj, indent=1) -> str:
 # ------------------------------------------------------------------------------------------- PNG
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
-#: ISA-L deflate levels (0 fastest ... 3); ``compression`` above 3 uses 3.
-PNG_LEVELS = (0, 1, 2, 3)
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
@@ -49,9 +54,9 @@ def encode_png(img: np.ndarray, *, bilevel: bool = False, compression: int = 1) 
     """PNG bytes of a uint8/uint16 image: ``(H, W)`` gray or ``(H, W, 3)`` **RGB**.
 
     ``bilevel`` writes a 1-bit gray PNG (any non-zero pixel is 1; OpenCV reads it back as 0/255, PIL and
-    MATLAB as a logical image). Otherwise 8 or 16 bits per sample as given. No row filter; the scanlines
-    are deflated by ISA-L at level ``compression`` (0..3, clamped; see the module docstring for the
-    measurements). Sparse event images and masks are mostly runs of zeros, which any level packs well.
+    MATLAB as a logical image). Otherwise 8 or 16 bits per sample as given. No row filter; the scanlines are
+    deflated run-length (see the module docstring), or stored uncompressed with ``compression=0``. Sparse event
+    images and masks are mostly runs of zeros, which run-length deflate packs well.
     """
     img = np.asarray(img)
     if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3) or img.dtype not in (np.uint8, np.uint16):
@@ -68,10 +73,15 @@ def encode_png(img: np.ndarray, *, bilevel: bool = False, compression: int = 1) 
     raw = np.empty((H, rows.shape[1] + 1), np.uint8)
     raw[:, 0] = 0                                   # filter type 0 (none) on every scanline
     raw[:, 1:] = rows
-    level = min(max(int(compression), 0), 3)
-    idat = isal_zlib.compress(raw, level)
+    idat = _deflate(raw, int(compression) > 0)
     return (_PNG_SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, depth, colour, 0, 0, 0))
             + _chunk(b"IDAT", idat) + _IEND)
+
+
+def _deflate(raw: np.ndarray, compress: bool) -> bytes:
+    """The zlib stream of ``raw``: run-length deflate (level 1, ``Z_RLE``), or stored blocks (level 0)."""
+    c = zlib_ng.compressobj(1 if compress else 0, zlib_ng.DEFLATED, 15, 8, zlib_ng.Z_RLE)
+    return c.compress(raw) + c.flush()
 
 
 # ------------------------------------------------------------------------------------------- MAT

@@ -16,8 +16,9 @@ import numpy as np
 
 __all__ = ["EXPORT_LAYOUT_VERSION", "evpose_version", "file_digest", "T_list", "export_fingerprint", "fingerprint_sha"]
 
-#: Version of the output layouts; part of the fingerprint and of every manifest.
-EXPORT_LAYOUT_VERSION = 1
+#: Version of the output layouts; part of the fingerprint and of every manifest. 2 (issue 22): PNGs deflated
+#: run-length (other bytes, same pixels), HDF5 files in a canonical order, no run statistics in the manifest.
+EXPORT_LAYOUT_VERSION = 2
 
 
 def evpose_version() -> str:

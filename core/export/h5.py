@@ -24,7 +24,9 @@ Layout (N = selected windows, in tiling order; K = exported objects; H x W = sen
     _done              (N,) uint8             1 when the row is complete (resume bookkeeping)
 
 Image datasets are chunked one window per chunk and compressed with Blosc/LZ4 (``hdf5plugin``; readers
-need ``import hdf5plugin``); small datasets are chunked along windows. Root attributes: format,
+need ``import hdf5plugin``); small datasets are chunked along windows. The finished file is written once more in
+a canonical order (:mod:`evpose.core.export.h5_canonical`): equal inputs give byte-identical files across runs,
+``--jobs``, Dask workers and resumes. Root attributes: format,
 evpose_version, scene, camera_K, camera_dist, width, height, object_names, class_ids, clock_offset_us,
 clock_skew_ppm, clock_t_ref_us, corrections (JSON), window_us / window_events, label_at, margin_m,
 counts_saturation, config_sha256.
@@ -38,9 +40,11 @@ from pathlib import Path
 
 import numpy as np
 
-from evpose.core.data.atomic import fsync_dir, write_atomic
+from evpose.core.data.atomic import fsync_dir, fsync_path, write_atomic
 from evpose.core.data.os_errors import ensure_free_space, os_error_from_hdf5
+from evpose.core.data.temp_files import temp_path_for
 from evpose.core.export.fingerprint import evpose_version
+from evpose.core.export.h5_canonical import canonical_copy
 from evpose.core.export.h5_file import (
     COUNTS_MAX,
     MARGIN_BYTES,
@@ -120,6 +124,7 @@ class H5Writer(FormatWriter):
         if final.exists():
             if _is_complete(final, ctx.sha):
                 ctx.extra["h5_complete"] = True
+                part.unlink(missing_ok=True)     # a run killed after its rename left it
                 return
             final.unlink()
         ctx.extra["h5_complete"] = False
@@ -246,14 +251,34 @@ class H5Writer(FormatWriter):
             ctx.extra["h5"] = None
             if not done.all():      # pragma: no cover - every selected window goes through process()
                 raise ExportError(f"{part}: {int((done == 0).sum())} rows were not written")
-            if ctx.durable != "none":
-                fsync_dir(part)
-            st = os.stat(part)               # the final name is logged before it appears (same size, mtime)
-            ctx.owned.files([(final, st.st_size, st.st_mtime_ns)])
-            os.replace(part, final)
-            if ctx.durable != "none":
-                fsync_dir(final.parent)
+            self._finish_canonical(ctx, part, final)
         return [final.name, "README.txt"], []
+
+    @staticmethod
+    def _finish_canonical(ctx, part: Path, final: Path) -> None:
+        """The final file: the complete partial file rewritten in the canonical order
+        (:func:`evpose.core.export.h5_canonical.canonical_copy`, so equal data gives equal bytes whatever the
+        order the rows were written in, resumes included), fsynced, logged, renamed into place; then the partial
+        file is removed. A kill before the rename leaves the partial file (the rerun finishes from it) and a
+        temporary file (removed by the rerun)."""
+        ensure_free_space(part, os.stat(part).st_size + MARGIN_BYTES, "the finished HDF5 file")
+        tmp = temp_path_for(final)
+        try:
+            canonical_copy(part, tmp)
+            if ctx.durable != "none":
+                fsync_path(tmp)
+        except BaseException as exc:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            if isinstance(exc, Exception):
+                raise _h5_failure(exc, final) from None
+            raise
+        st = os.stat(tmp)                    # the final name is logged before it appears (same size, mtime)
+        ctx.owned.files([(final, st.st_size, st.st_mtime_ns)])
+        os.replace(tmp, final)
+        part.unlink()
+        if ctx.durable != "none":
+            fsync_dir(final.parent)
 
     def abort(self, ctx) -> None:
         f = ctx.extra.get("h5")

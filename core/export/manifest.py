@@ -4,6 +4,10 @@ Written last, after every other file: the format, evpose version, configuration 
 and hand-eye correction in effect, camera, the exported objects with their poses (manifest, correction,
 result), every window of the tiling with its status (``written``, ``unlabeled``, ``missing``,
 ``filtered_unverified``), why windows have no label, the files, and the per-window file patterns.
+
+Nothing of the run itself (run time, ``--jobs``, windows written now or skipped as already complete): equal
+inputs give a byte-identical manifest, as every other file of an export, however the export was run or resumed.
+The run's numbers are in :class:`evpose.core.export.summary.ExportSummary` (the command prints them).
 """
 from __future__ import annotations
 
@@ -95,7 +99,5 @@ def write_manifest(ctx, summary, records, selected, valid, unlabeled) -> None:
         "files": ctx.extra["top_files"],
         "window_files": ctx.extra["window_file_patterns"],
         "extra": ctx.extra.get("manifest_extra", {}),
-        "run": {"written": summary.written, "skipped_complete": summary.skipped_complete,
-                "runtime_s": summary.runtime_s, "jobs": summary.jobs},
     }
     write_atomic(ctx.out_dir / MANIFEST_NAME, json_text(doc).encode(), ctx.fsync, ctx.owned)

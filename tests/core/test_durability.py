@@ -318,12 +318,16 @@ def test_h5_export_fsyncs_the_partial_before_renaming_it(tiny_scene_dir, tmp_pat
     assert_durable_rename(rec, out / "tiny.h5")
     part = str(out / ".tiny.h5.partial")
     i_rep = rec.index(lambda e: e[0] == "replace" and e[2] == str(out / "tiny.h5"))
-    i_close = max(i for i, e in enumerate(rec.events[:i_rep]) if e[0] == "h5close" and e[1] == part)
-    assert any(e[0] == "fsync" and e[1] == part for e in rec.events[i_close:i_rep]), \
+    src = rec.events[i_rep][1]               # the canonical copy of the partial file (issue 22), beside it
+    assert Path(src).parent == out and src != part and Path(src).name.startswith(".tiny.h5.")
+    i_part = min(i for i, e in enumerate(rec.events[:i_rep]) if e[0] == "h5close" and e[1] == part)  # the writer's
+    i_close = max(i for i, e in enumerate(rec.events[:i_rep]) if e[0] == "h5close" and e[1] == src)
+    assert i_part < i_close, "the copy was made before the partial file was complete"
+    assert any(e[0] == "fsync" and e[1] == src for e in rec.events[i_close:i_rep]), \
         "the HDF5 file was not fsynced between its close (HDF5's last writes) and the rename"
-    i_rep = rec.index(lambda e: e[0] == "replace" and e[2] == str(out / "tiny.h5"))
     i_log = rec.index(lambda e: e[0] == "write" and b'"f":"tiny.h5"' in e[2])
     assert i_log < i_rep, "the HDF5 file appeared before it was logged"
+    assert not Path(part).exists() and not Path(src).exists()
 
 
 # ------------------------------------------------------------------------------------------- journal cut

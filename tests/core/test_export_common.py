@@ -21,16 +21,10 @@ from evpose.core.label.windows import Window
 
 # ----------------------------------------------------------------------------------------- helpers
 def tree_hashes(out: Path) -> dict:
-    """sha256 of every file of an export except the state folder and the run-dependent manifest."""
+    """sha256 of every file of an export except evpose's state folder (the manifest included: it holds nothing
+    of the run, so a resumed or parallel export has the same bytes)."""
     return {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(out.rglob("*")) if p.is_file() and ".evpose" not in p.parts
-            and p.name != "export_manifest.json"}
-
-
-def manifest_core(out: Path) -> dict:
-    m = json.loads((out / "export_manifest.json").read_text())
-    m.pop("run")
-    return m
+            for p in sorted(out.rglob("*")) if p.is_file() and ".evpose" not in p.parts}
 
 
 def no_temp_files(out: Path) -> bool:
@@ -139,7 +133,6 @@ def test_cancel_resume_identical_no_temp(small_scene, tmp_path):
     assert s.skipped_complete == 5 and s.written == 7
     assert no_temp_files(out)
     assert tree_hashes(out) == tree_hashes(ref)
-    assert manifest_core(out) == manifest_core(ref)
     # a window whose last file is gone is redone
     (out / "0023_data.mat").unlink()
     s = export_scene(small_scene, "epose", out, only_verified=True)
@@ -215,7 +208,6 @@ def test_jobs2_identical_to_jobs1_and_cancel(small_scene, tmp_path):
     s = export_scene(small_scene, "epose", two, only_verified=True, jobs=2)
     assert s.jobs == 2 and s.written + s.skipped_complete == 12 and s.skipped_complete > 0
     assert tree_hashes(one) == tree_hashes(two)
-    assert manifest_core(one) == manifest_core(two)
     assert s.timings_s["annotate"] > 0
 
 
