@@ -17,6 +17,7 @@ import sys
 from evpose.app.cli.errors import EXIT_PARTIAL, CliError, command
 from evpose.app.cli.export import format_options_from_args, objects_from_args, window_us_from_args
 from evpose.app.cli.json_output import emit
+from evpose.app.cli.options import scheduler_option
 from evpose.app.cli.progress import Progress
 
 __all__ = ["add_dataset_parser"]
@@ -26,7 +27,8 @@ def _cluster_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("cluster (Dask)").add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None, metavar="N",
                    help="a local Dask cluster of N worker processes (default: the machine's cores)")
-    g.add_argument("--scheduler", metavar="ADDR", help="an existing Dask cluster, e.g. tcp://host:8786")
+    g.add_argument("--scheduler", metavar="ADDR", type=scheduler_option,
+                   help="an existing Dask cluster: tcp://host:port or host:port, e.g. tcp://head:8786")
     p.add_argument("--json", action="store_true", help="print one JSON document (scenes, failed, runtime_s)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
@@ -62,15 +64,21 @@ def _open_dataset(args):
     return Dataset.open(args.dataset)
 
 
+def _map(args, ds, task, *task_args, label: str):
+    """``task`` over every scene of ``ds`` on the cluster of ``args``; unreadable scenes failed for their reason."""
+    from evpose.core.dataset.batch import map_scenes
+
+    with _cluster(args) as client, Progress(f"dataset {args.action}", not args.quiet) as progress:
+        result = map_scenes(client, ds, task, *task_args, label=label, progress=progress)
+    return ds.unreadable_failed(result)
+
+
 # ------------------------------------------------------------------------------------------------- commands
 @command("dataset info")
 def cmd_info(args) -> int:
-    from evpose.core.dataset.batch import map_scenes
     from evpose.core.dataset.tasks import info_task
 
-    ds = _open_dataset(args)
-    with _cluster(args) as client, Progress("dataset info", not args.quiet) as progress:
-        result = map_scenes(client, ds, info_task, label="info", progress=progress)
+    result = _map(args, _open_dataset(args), info_task, label="info")
     return _finish(args, result, _table(result, [
         ("events", lambda d: f"{d['n_events']:,}"), ("duration_s", lambda d: f"{d['duration_s']:.2f}"),
         ("objects", lambda d: ",".join(d["objects"])), ("offset_us", lambda d: str(d["clock"]["offset_us"])),
@@ -80,13 +88,10 @@ def cmd_info(args) -> int:
 @command("dataset sync")
 def cmd_sync(args) -> int:
     from evpose.app.cli.sync import check_sync_args, sync_options
-    from evpose.core.dataset.batch import map_scenes
     from evpose.core.dataset.tasks import sync_task
 
     check_sync_args(args)
-    ds = _open_dataset(args)
-    with _cluster(args) as client, Progress("dataset sync", not args.quiet) as progress:
-        result = map_scenes(client, ds, sync_task, sync_options(args), label="sync", progress=progress)
+    result = _map(args, _open_dataset(args), sync_task, sync_options(args), label="sync")
 
     def offset(d):
         return "-" if d.get("offset_us") is None else str(d["offset_us"])
@@ -103,15 +108,11 @@ def cmd_sync(args) -> int:
 
 @command("dataset score")
 def cmd_score(args) -> int:
-    from evpose.core.dataset.batch import map_scenes
     from evpose.core.dataset.tasks import score_task
 
     if not args.window_ms > 0:
         raise CliError(f"--window-ms: must be a positive number of milliseconds, got {args.window_ms}")
-    ds = _open_dataset(args)
-    with _cluster(args) as client, Progress("dataset score", not args.quiet) as progress:
-        result = map_scenes(client, ds, score_task, int(round(args.window_ms * 1000)), label="score",
-                            progress=progress)
+    result = _map(args, _open_dataset(args), score_task, int(round(args.window_ms * 1000)), label="score")
 
     def means(d):
         return ", ".join(f"{n} {'n/a' if s['mean_score'] is None else format(s['mean_score'], '.3f')}"
@@ -123,14 +124,14 @@ def cmd_score(args) -> int:
 @command("dataset report")
 def cmd_report(args) -> int:
     from evpose.core.align.sync_run import SyncOptions
-    from evpose.core.dataset.batch import map_scenes
+    from evpose.core.data.owned_files import check_out_path
     from evpose.core.dataset.report_html import write_report
     from evpose.core.dataset.tasks import triage_task
     from evpose.core.dataset.triage import triage
 
     ds = _open_dataset(args)
-    with _cluster(args) as client, Progress("dataset report", not args.quiet) as progress:
-        result = map_scenes(client, ds, triage_task, SyncOptions(), label="triage", progress=progress)
+    check_out_path(args.out, "file", ds.input_folders(args.out))        # before minutes of work, and never a device
+    result = _map(args, ds, triage_task, SyncOptions(), label="triage")
     doc = triage(result.to_json(), order=[ref.name for ref in ds.scenes])
     path = write_report(doc, args.out)
     for name, err in result.failed.items():
@@ -146,26 +147,47 @@ def cmd_report(args) -> int:
 
 @command("dataset export", interrupted="interrupted; rerun the same command to resume")
 def cmd_export(args) -> int:
-    from evpose.core.dataset.export import export_dataset
+    from evpose.core.dataset.export import check_dataset_export, export_dataset
 
     window_us = window_us_from_args(args)
     objects = objects_from_args(args)
     ds = _open_dataset(args)
+    check_dataset_export(ds, args.out, args.format, objects)          # before the cluster starts
     with _cluster(args) as client, Progress(f"dataset export {args.format}", not args.quiet) as progress:
         result = export_dataset(client, ds, args.format, args.out, progress=progress, window_us=window_us,
                                 window_events=args.window_events, label_at=args.label_at,
                                 only_verified=args.only_verified, include_stale=args.include_stale, objects=objects,
                                 margin_m=args.margin_mm * 1e-3, force=args.force,
                                 format_options=format_options_from_args(args))
-    return _finish(args, result, _table(result, [
+    text = _table(result, [
         ("written", lambda d: str(d["written"])), ("complete", lambda d: str(d["skipped_complete"])),
-        ("unlabeled", lambda d: str(d["unlabeled"])), ("windows", lambda d: str(d["windows_total"]))]))
+        ("unlabeled", lambda d: str(d["unlabeled"])), ("windows", lambda d: str(d["windows_total"]))])
+    return _finish(args, result, text + _bop_line(args, result))
+
+
+def _bop_line(args, result) -> str:
+    """For BOP: what ``OUT/bop`` holds, saying which scenes it lacks (never a silently shorter dataset)."""
+    from pathlib import Path
+
+    from evpose.core.dataset.bop_dataset import BOP_DIR, read_names
+
+    if args.format != "bop" or "bop" in result.failed:
+        return ""
+    bop = Path(args.out) / BOP_DIR
+    doc = read_names(bop)
+    if doc is None:
+        return ""
+    missing = f"; without {', '.join(doc['missing'])} (failed: scene ids kept free)" if doc.get("missing") else ""
+    return f"\n{bop}: one BOP dataset of {len(doc['scenes'])} scene(s){missing}"
 
 
 @command("dataset import")
 def cmd_import(args) -> int:
+    from evpose.core.data.owned_files import check_out_path, scene_folders_around
     from evpose.core.dataset.import_bags import import_dataset
 
+    check_out_path(args.out, "folder", [(args.raw_dir, "the folder of the bags"), (args.assets, "the assets folder"),
+                                        *scene_folders_around(args.out)])
     with _cluster(args) as client, Progress("dataset import", not args.quiet) as progress:
         result = import_dataset(client, args.raw_dir, args.assets, args.out, progress=progress)
     return _finish(args, result, _table(result, [

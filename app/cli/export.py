@@ -123,10 +123,12 @@ def objects_from_args(args) -> list[str] | None:
 def cmd_export(args) -> int:
     """Run ``evpose export`` from parsed arguments; returns the exit status."""
     from evpose.core.export import export_scene
+    from evpose.core.export.out_folder import check_export_out
 
     window_us = window_us_from_args(args)
     objects = objects_from_args(args)
     format_options = format_options_from_args(args)
+    check_export_out(args.out, args.scene)
     try:
         with Progress(f"export {args.format}", not args.quiet) as progress:
             s = export_scene(args.scene, args.format, args.out, window_us=window_us, window_events=args.window_events,

@@ -44,8 +44,9 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     s.add_argument("src", metavar="SRC", nargs="+", help="input files or folders (never modified)")
     s.add_argument("--out", required=True, help="scene folder to create")
     g = s.add_argument_group("common")
-    g.add_argument("--repair", action="store_true", help="repair what can be repaired (sort, drop, project "
-                   "rotations onto SO(3)) instead of refusing; everything is listed in import_report.json")
+    g.add_argument("--repair", action="store_true", help="repair what can be repaired instead of refusing: drop "
+                   "events off the sensor, with NaN values or out of time order beyond --reorder-window-ms, project "
+                   "rotations onto SO(3), sort pose samples; every change is counted in import_report.json")
     g.add_argument("--force", action="store_true", help="replace a scene evpose made in --out (removes "
                    "only the files it wrote; never a folder holding a SRC; refuses when anything else is in it)")
     g.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
@@ -62,7 +63,9 @@ def add_import_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--max-span-s", type=float, default=4 * 3600.0,
                    help="refuse event times spanning more than this (corrupt stamps, wrong units); default 14400")
     g.add_argument("--reorder-window-ms", type=float, default=100.0,
-                   help="events may arrive this much out of order (bounded stream merge); default 100")
+                   help="events out of time order by at most this much are put in order (times unchanged, counted "
+                        "in import_report.json; further ones are refused, or dropped with --repair); default 100, "
+                        "0 accepts no disorder")
     g = s.add_argument_group("epose-bag / epose-export")
     g.add_argument("--assets",
                    help="E-POSE assets folder (camera_davis346.json, models/, scenes.json, time_shifts.csv)")

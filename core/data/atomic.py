@@ -15,19 +15,35 @@ reader sees the old file or the new one, never a partial one. Two ways in:
   :func:`sync_filesystem`); each file is logged in an ownership log
   (:class:`evpose.core.data.owned_log.OwnedLog`) before it appears under its name.
 
-An ``OSError`` without a file name (a failed ``write``) is re-raised naming the target.
+An ``OSError`` without a file name (a failed ``write``) is re-raised naming the target. A target that
+exists and is neither a regular file nor a symbolic link (a device, a FIFO, a socket, a folder) is never
+replaced (:func:`check_replaceable`): the write is refused naming it.
 """
 from __future__ import annotations
 
 import contextlib
 import os
+import stat
 from pathlib import Path
 
+from evpose.core.data.input_files import describe_kind
 from evpose.core.data.os_errors import with_path
 from evpose.core.data.temp_files import clean_stale_temps, create_temp, open_locked_temp
+from evpose.core.errors import NotOursError
 
-__all__ = ["fsync_dir", "fsync_path", "sync_filesystem", "atomic_path", "atomic_write_bytes", "atomic_write_text",
-           "AtomicBatch", "write_atomic"]
+__all__ = ["fsync_dir", "fsync_path", "sync_filesystem", "rename_durably", "check_replaceable", "atomic_path",
+           "atomic_write_bytes", "atomic_write_text", "AtomicBatch", "write_atomic"]
+
+
+def check_replaceable(path) -> None:
+    """Refuse (:class:`~evpose.core.errors.NotOursError`) to rename a file onto ``path`` when it exists and is
+    neither a regular file nor a symbolic link: a device, a FIFO or a socket is never replaced."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return                      # absent (or unreadable: the rename itself reports it)
+    if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
+        raise NotOursError(f"{path}: exists and is {describe_kind(mode)}, not a regular file; evpose never replaces it")
 
 
 # ------------------------------------------------------------------------------------------- syncing
@@ -72,6 +88,15 @@ def sync_filesystem(path) -> None:
     os.sync()
 
 
+def rename_durably(src, dst) -> None:
+    """Rename ``src`` (a file or a folder whose content is on disk already, e.g. after
+    :func:`sync_filesystem`) to ``dst``, then fsync the folder(s) holding them: the new name survives a power
+    cut. An existing ``dst`` is replaced as :func:`os.rename` does (an empty folder by a folder)."""
+    os.rename(src, dst)
+    for d in dict.fromkeys([Path(dst).parent, Path(src).parent]):
+        fsync_dir(d)
+
+
 # ------------------------------------------------------------------------------------------- one document
 @contextlib.contextmanager
 def atomic_path(path):
@@ -92,6 +117,7 @@ def atomic_path(path):
         # keep the mode of the file replaced (the temp file already has the umask default)
         with contextlib.suppress(OSError):
             os.chmod(tmp, os.stat(path).st_mode & 0o7777)
+        check_replaceable(path)
         os.replace(tmp, path)
         fsync_dir(path.parent)
     except BaseException as exc:
@@ -160,6 +186,8 @@ class AtomicBatch:
         if self.log is not None:       # logged before they appear under their names
             self.log.files(self._stats)
             self._stats = []
+        for _tmp, path in self._pending:     # nothing renamed when one target may not be replaced
+            check_replaceable(path)
         for tmp, path in self._pending:
             try:
                 os.replace(tmp, path)

@@ -23,20 +23,26 @@ Inputs
 ------
 :func:`held_input` finds an input of the command inside (or equal to) the output folder, comparing
 absolute paths and their resolved targets (symbolic links followed), so ``--force`` never removes a
-folder that holds a source of the same command.
+folder that holds a source of the same command. :func:`check_out_path` refuses, before anything is
+written, an output that would land inside (or on) an input folder, or on an existing entry that is not
+what the command writes (a device, a FIFO, a socket: never replaced).
 """
 from __future__ import annotations
 
 import contextlib
 import os
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from evpose.core.data.input_files import describe_kind
 from evpose.core.data.owned_log import LOG_RE, STATE_DIR, read_logs
 from evpose.core.data.temp_files import TEMP_RE, is_stale
+from evpose.core.errors import NotOursError
 
-__all__ = ["Inventory", "inventory", "remove_owned", "in_the_way", "held_input", "input_paths"]
+__all__ = ["Inventory", "inventory", "remove_owned", "in_the_way", "held_input", "input_paths", "check_out_path",
+           "scene_folders_around"]
 
 #: The millisecond index evpose caches beside an event file it wrote.
 CACHE_SUFFIX = ".msidx.npz"
@@ -255,3 +261,54 @@ def input_paths(*values) -> list[Path]:
                 if piece and os.path.exists(os.path.expanduser(piece)):
                     out.append(Path(piece))
     return out
+
+
+# ------------------------------------------------------------------------------------------- outputs
+def check_out_path(out, kind: str, inputs=(), option: str = "--out", error=NotOursError) -> Path:
+    """Refuse ``out`` before anything is written to it; returns it as given.
+
+    ``kind`` is what the command writes there: ``"folder"`` or ``"file"``. Refused (``error``, an
+    :class:`~evpose.core.errors.InputError`; one line naming the path and the option): an existing entry of
+    another kind -- a device, a FIFO, a socket is never replaced --, a symbolic link that cannot be followed
+    (a loop, a missing target), a file without a folder to go into; and a path inside (or equal to) one of
+    ``inputs``, ``(folder, what)`` pairs such as ``(scene_dir, "the scene folder")`` (symbolic links
+    followed; a folder None is skipped): outputs never land inside inputs.
+    """
+    out = Path(out).expanduser()
+
+    def refuse(reason: str) -> Exception:
+        return error(f"{out}: {option}: {reason}")
+
+    try:
+        st = os.stat(out)
+    except FileNotFoundError:
+        st = None
+        if os.path.islink(out):
+            raise refuse(f"a symbolic link to {os.readlink(out)}, which does not exist") from None
+    except OSError as exc:
+        raise refuse(f"cannot be used ({exc.strerror})") from None
+    want = "folder" if kind == "folder" else "regular file"
+    if st is not None and not (stat.S_ISDIR(st.st_mode) if kind == "folder" else stat.S_ISREG(st.st_mode)):
+        is_ = "a regular file" if stat.S_ISREG(st.st_mode) else describe_kind(st.st_mode)
+        raise refuse(f"exists and is {is_}, not a {want}; evpose never replaces it: "
+                     "choose another path")
+    parent = os.path.dirname(os.path.abspath(out))
+    if kind == "file" and st is None and not os.path.isdir(parent):
+        raise refuse(f"no folder {parent} to write it into")
+    for folder, what in inputs:
+        if folder is not None and held_input(folder, [out]) is not None:
+            where = "is" if os.path.realpath(out) == os.path.realpath(folder) else "inside"
+            raise refuse(f"{where} {what} {folder}; evpose never writes into its inputs: choose a path outside it")
+    return out
+
+
+def scene_folders_around(out) -> list[tuple[Path, str]]:
+    """``(folder, "a scene folder")`` of every folder holding a ``scene.toml`` that ``out`` is inside of or
+    equal to (its path as given and with symbolic links resolved), for :func:`check_out_path`: an output never
+    goes into a scene."""
+    from evpose.core.data.manifest import SCENE_FILENAME
+
+    a = Path(os.path.abspath(Path(out).expanduser()))
+    r = Path(os.path.realpath(a))
+    return [(p, "a scene folder") for p in dict.fromkeys([a, *a.parents, r, *r.parents])
+            if os.path.lexists(p / SCENE_FILENAME)]

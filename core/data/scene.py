@@ -17,7 +17,14 @@ from evpose.core.data.geometry import inv_T
 from evpose.core.data.manifest import SceneError, SceneManifest
 from evpose.core.data.manifest_reader import load_manifest
 from evpose.core.data.mesh_closure import cached_cull_sign
-from evpose.core.data.objects import ObjectModel, ObjectModelError, raster_friendly
+from evpose.core.data.objects import (
+    ObjectModel,
+    ObjectModelError,
+    camera_inside_problem,
+    mesh_bounds,
+    raster_friendly,
+    size_problem,
+)
 from evpose.core.data.trajectory import Trajectory, TrajectoryError
 from evpose.core.document.corrections import CORRECTIONS_FILENAME, Corrections
 
@@ -38,13 +45,16 @@ class Scene:
     def open(cls, path, *, corrections: Corrections | str | None = "auto", defaults: dict | None = None) -> "Scene":
         """Open a scene folder or ``scene.toml``; ``corrections="auto"`` loads ``corrections.json``
         beside it when present; ``defaults``: a dataset's shared tables
-        (:func:`evpose.core.data.manifest_reader.load_manifest`)."""
+        (:func:`evpose.core.data.manifest_reader.load_manifest`). Objects of implausible size are refused
+        here (:meth:`check_object_sizes`), so every command that opens a scene says so."""
         manifest = load_manifest(path, defaults=defaults)
         if isinstance(corrections, str) and corrections == "auto":
             cpath = manifest.root / CORRECTIONS_FILENAME
             corrections = (Corrections.load(cpath, known_objects=[o.name for o in manifest.objects])
                            if cpath.exists() or cpath.is_symlink() else None)
-        return cls(manifest, corrections)
+        scene = cls(manifest, corrections)
+        scene.check_object_sizes()
+        return scene
 
     # ------------------------------------------------------------------ resources
     @property
@@ -82,9 +92,11 @@ class Scene:
         (``[trajectory] max_gap_us``, default :func:`evpose.core.data.trajectory_holes.default_max_gap_us`)."""
         mg = self.manifest.trajectory_max_gap_us
         try:
-            return Trajectory.load_csv(self.manifest.trajectory_path, max_gap_us="auto" if mg is None else mg)
+            traj = Trajectory.load_csv(self.manifest.trajectory_path, max_gap_us="auto" if mg is None else mg)
         except TrajectoryError as exc:
             raise SceneError(self.manifest.path, "trajectory.path", str(exc)) from None
+        self._check_camera_outside_objects(traj)
+        return traj
 
     def unlabeled_reasons(self, t_event_us, clock: ClockModel | None = None) -> list[str | None]:
         """Why each event time gets no label (None where it gets one): before or after the
@@ -126,16 +138,56 @@ class Scene:
         return {}
 
     def model(self, name: str) -> ObjectModel:
-        """The object's mesh in metres (loaded once)."""
+        """The object's mesh in metres (loaded once; refused when its size is implausible)."""
         if name not in self._models:
             spec = self.manifest.object(name)
+            i = self.object_names.index(name)
             try:
-                self._models[name] = ObjectModel.from_file(spec.mesh, name=name, mesh_scale=spec.mesh_scale,
-                                                           class_id=spec.class_id, symmetric=spec.symmetric)
+                model = ObjectModel.from_file(spec.mesh, name=name, mesh_scale=spec.mesh_scale,
+                                              class_id=spec.class_id, symmetric=spec.symmetric)
             except ObjectModelError as exc:
-                i = self.object_names.index(name)
                 raise SceneError(self.manifest.path, f"objects[{i}].mesh", str(exc)) from None
+            lo, hi = model.bbox_min_max
+            self._refuse_size(i, size_problem(hi - lo, spec.mesh_scale))
+            self._models[name] = model
         return self._models[name]
+
+    # ------------------------------------------------------------------ scale sanity
+    def _object_box(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box ``(lo, hi)`` of object ``i`` in its frame, metres, from the mesh file's cached bounds."""
+        spec = self.manifest.objects[i]
+        try:
+            lo, hi = mesh_bounds(spec.mesh)
+        except ObjectModelError as exc:
+            raise SceneError(self.manifest.path, f"objects[{i}].mesh", str(exc)) from None
+        return lo * spec.mesh_scale, hi * spec.mesh_scale
+
+    def _refuse_size(self, i: int, problem: str | None) -> None:
+        if problem is not None:
+            spec = self.manifest.objects[i]
+            raise SceneError(self.manifest.path, f"objects[{i}].mesh_scale", f"{spec.mesh} ({spec.name}): {problem}")
+
+    def check_object_sizes(self) -> None:
+        """Refuse an object whose size is implausible (:func:`evpose.core.data.objects.size_problem`: a mesh
+        in millimetres read as metres, or the reverse), naming ``objects[i].mesh_scale`` and the value to try.
+        Reads each mesh's bounding box (:func:`~evpose.core.data.objects.mesh_bounds`, cached by content)."""
+        for i, spec in enumerate(self.manifest.objects):
+            lo, hi = self._object_box(i)
+            self._refuse_size(i, size_problem(hi - lo, spec.mesh_scale))
+
+    def _check_camera_outside_objects(self, traj: Trajectory) -> None:
+        """Refuse an object whose bounding box holds the camera at every pose of ``traj``
+        (:func:`evpose.core.data.objects.camera_inside_problem`); run when the trajectory loads."""
+        if not self.manifest.objects or not len(traj):
+            return
+        T = traj.T()
+        if self.manifest.trajectory_frame == "tcp":
+            T = T @ self.manifest.hand_eye
+        positions = (T @ self.corrections.hand_eye_delta)[:, :3, 3]
+        for i, spec in enumerate(self.manifest.objects):
+            lo, hi = self._object_box(i)
+            self._refuse_size(i, camera_inside_problem(lo, hi, self.T_base_obj(spec.name), positions,
+                                                       spec.mesh_scale))
 
     def raster_model(self, name: str) -> ObjectModel:
         """The object's mesh for rasterising: the same surface with long edges split

@@ -16,7 +16,7 @@ import secrets
 from pathlib import Path
 
 from evpose.core.data import atomic
-from evpose.core.data.owned_files import held_input, in_the_way, inventory, remove_owned
+from evpose.core.data.owned_files import held_input, in_the_way, inventory, remove_owned, scene_folders_around
 from evpose.core.data.owned_log import record_tree
 from evpose.core.data.temp_files import is_stale
 from evpose.core.errors import NotOursError
@@ -31,11 +31,17 @@ SCENE_ROLE = "scene"
 def check_scene_out(out, inputs, force: bool) -> Path:
     """The absolute scene folder ``out`` of ``synth`` / ``import``, checked before anything is written.
 
-    Refuses (:class:`NotOurs`, whose ``reason`` is the message without the path) a path that is not
+    Refuses (:class:`NotOurs`, whose ``reason`` is the message without the path) a path inside (or equal to)
+    a folder among ``inputs`` or inside a scene folder (outputs never land inside inputs); a path that is not
     a folder; a non-empty folder without ``force``; with ``force``, a folder holding an input of the
     command, or holding anything evpose cannot prove it wrote (see :func:`inventory`).
     """
     out = Path(os.path.abspath(Path(out).expanduser()))
+    guards = [(Path(p), "an input folder of this command") for p in inputs if os.path.isdir(p)]
+    for folder, what in guards + scene_folders_around(out.parent):      # outputs never land inside inputs
+        if held_input(folder, [out]) is not None:
+            raise _not_ours(out, f"is or is inside {what}, {folder}: evpose never writes into an input or into "
+                                 "another scene; choose a folder outside it")
     if not out.exists() and not out.is_symlink():
         return out
     if not out.is_dir():

@@ -17,14 +17,22 @@ name order (hidden folders, such as the staging folder of an import in progress,
 
 Each scene keeps its own ``corrections.json``: there is no second copy of the truth. Scenes are named
 by their folder's name (unique within a dataset).
+
+A scene that cannot be read -- a subfolder (or a listed folder) that is a symbolic link loop or whose link
+leads nowhere, a ``scene.toml`` that is a loop, a FIFO, a device or a folder -- is never skipped: it stays
+in :attr:`Dataset.scenes` with its :attr:`SceneRef.error`, and every dataset command reports it as failed
+(:meth:`Dataset.open_scene` raises it, :meth:`Dataset.unreadable_failed` overrides what a worker said). A
+``dataset.toml`` that is not a regular file is refused, never passed over for the subfolders.
 """
 from __future__ import annotations
 
+import os
+import stat
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from evpose.core.data.input_files import MAX_MANIFEST_BYTES, InputFileError, open_regular
+from evpose.core.data.input_files import MAX_MANIFEST_BYTES, InputFileError, describe_kind, open_regular
 from evpose.core.data.manifest import SCENE_FILENAME
 from evpose.core.errors import InputError
 
@@ -48,10 +56,12 @@ class DatasetError(InputError):
 
 @dataclass(frozen=True)
 class SceneRef:
-    """One scene of a dataset: its name (the folder's name) and its folder."""
+    """One scene of a dataset: its name (the folder's name) and its folder; ``error``: why it cannot be
+    read (None for a readable scene)."""
 
     name: str
     path: Path
+    error: str | None = None
 
 
 @dataclass
@@ -68,14 +78,17 @@ class Dataset:
     def open(cls, path) -> "Dataset":
         """Read the dataset at ``path`` (its folder, or its ``dataset.toml``)."""
         path = Path(path).expanduser()
-        if path.name == DATASET_FILENAME and path.is_file():
+        if path.name == DATASET_FILENAME and os.path.lexists(path) and not path.is_dir():
             return _from_file(path)
         if not path.is_dir():
             raise DatasetError(f"{path}: not a dataset folder (no such folder)")
-        if (path / DATASET_FILENAME).is_file():
+        if os.path.lexists(path / DATASET_FILENAME):        # a FIFO or a link loop is refused, never passed over
             return _from_file(path / DATASET_FILENAME)
-        scenes = [SceneRef(p.name, p) for p in sorted(path.iterdir(), key=lambda p: p.name)
-                  if p.is_dir() and not p.name.startswith(".") and (p / SCENE_FILENAME).is_file()]
+        scenes = []
+        for p in sorted(path.iterdir(), key=lambda p: p.name):
+            is_scene, error = (False, None) if p.name.startswith(".") else _probe(p)
+            if is_scene:
+                scenes.append(SceneRef(p.name, p, error))
         if not scenes:
             raise DatasetError(f"{path}: not a dataset: no {DATASET_FILENAME} and no subfolder holds a {SCENE_FILENAME}")
         return cls(path.resolve(), path.resolve().name, scenes)
@@ -87,10 +100,31 @@ class Dataset:
         raise DatasetError(f"{self.root}: no scene named {name!r}")
 
     def open_scene(self, ref: SceneRef, **kwargs):
-        """The :class:`~evpose.core.data.scene.Scene` of ``ref`` with the dataset's defaults."""
+        """The :class:`~evpose.core.data.scene.Scene` of ``ref`` with the dataset's defaults (an unreadable
+        scene raises its :attr:`SceneRef.error`)."""
         from evpose.core.data.scene import Scene
 
+        if ref.error is not None:
+            raise DatasetError(ref.error)
         return Scene.open(ref.path, defaults=self.defaults or None, **kwargs)
+
+    def input_folders(self, out=None) -> list[tuple[Path, str]]:
+        """``(folder, what)`` of every folder a dataset command reads: the scenes' and the dataset's, and any
+        other scene folder ``out`` is inside of (no output may land inside one:
+        :func:`evpose.core.data.owned_files.check_out_path`)."""
+        from evpose.core.data.owned_files import scene_folders_around
+
+        return ([(ref.path, "the scene folder") for ref in self.scenes] + [(self.root, "the dataset folder")]
+                + (scene_folders_around(out) if out is not None else []))
+
+    def unreadable_failed(self, result):
+        """``result`` (a :class:`~evpose.core.dataset.batch.BatchResult` of every scene) with each unreadable
+        scene failed for its own reason (a worker that tried to open it can only say less)."""
+        for ref in self.scenes:
+            if ref.error is not None:
+                result.scenes.pop(ref.name, None)
+                result.failed[ref.name] = ref.error
+        return result.ordered([ref.name for ref in self.scenes])
 
     def __len__(self) -> int:
         return len(self.scenes)
@@ -125,15 +159,53 @@ def _scene_list(path: Path, root: Path, entries) -> list[SceneRef]:
     for k, entry in enumerate(entries):
         folder = Path(entry).expanduser()
         folder = folder if folder.is_absolute() else root / folder
-        if not (folder / SCENE_FILENAME).is_file():
+        is_scene, error = _probe(folder)
+        if not is_scene:
             raise DatasetError(f"{path}: scenes[{k}]: {folder} holds no {SCENE_FILENAME}")
-        name = folder.resolve().name
+        try:
+            folder = folder.resolve()
+        except (OSError, RuntimeError):      # a symbolic link loop: reported as the scene's error
+            folder = Path(os.path.abspath(folder))
+        name = folder.name
         if name in seen:
             raise DatasetError(f"{path}: scenes[{k}]: a second scene named {name!r} (also scenes[{seen[name]}]); "
                                "scene folders must have distinct names")
         seen[name] = k
-        scenes.append(SceneRef(name, folder.resolve()))
+        scenes.append(SceneRef(name, folder, error))
     return scenes
+
+
+def _probe(folder: Path) -> tuple[bool, str | None]:
+    """``(is a scene, why it cannot be read)`` of a candidate scene folder: a folder holding a
+    ``scene.toml`` is a scene (error None when that is a regular file); a symbolic link that cannot be
+    followed is an unreadable scene (it may have been one); anything else is not a scene."""
+    def unreadable(p, exc: OSError) -> tuple[bool, str]:
+        return True, f"{p}: cannot be read ({exc.strerror})"
+
+    try:
+        st = os.stat(folder)
+    except FileNotFoundError:
+        if not os.path.islink(folder):
+            return False, None
+        return True, f"{folder}: a symbolic link to {os.readlink(folder)}, which does not exist"
+    except OSError as exc:
+        return unreadable(folder, exc)
+    if not stat.S_ISDIR(st.st_mode):
+        return False, None
+    manifest = folder / SCENE_FILENAME
+    try:
+        os.lstat(manifest)
+    except FileNotFoundError:
+        return False, None
+    except OSError as exc:
+        return unreadable(manifest, exc)
+    try:
+        st = os.stat(manifest)
+    except OSError as exc:
+        return unreadable(manifest, exc)
+    if not stat.S_ISREG(st.st_mode):
+        return True, f"{manifest}: is {describe_kind(st.st_mode)}, expected a regular file"
+    return True, None
 
 
 def _defaults(path: Path, table) -> dict:

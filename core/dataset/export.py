@@ -14,6 +14,11 @@ Each scene is driven from a thread of this process (windows, poses, journal, agg
 chunks of windows run as Dask tasks (:class:`~evpose.core.dataset.dask_windows.DaskWindows`), so one long
 sequence spreads over all workers and several scenes keep them busy. A scene that fails is reported;
 the others go on.
+
+Before anything is written (:func:`check_dataset_export`), ``OUT`` is refused when it is inside (or equal to)
+the dataset folder or a scene folder, when an ``OUT/<scene>`` or ``OUT/bop`` would hold one, or when it
+exists and is not a folder (a device, a FIFO, a socket: never replaced); for BOP, scenes that give one
+``obj_id`` to different models are refused (:func:`~evpose.core.dataset.bop_dataset.check_models`).
 """
 from __future__ import annotations
 
@@ -23,11 +28,13 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from evpose.core.data.events import Cancelled
+from evpose.core.data.owned_files import check_out_path, held_input
 from evpose.core.dataset.batch import BatchResult, failure_text
-from evpose.core.dataset.bop_dataset import assemble_bop
+from evpose.core.dataset.bop_dataset import BOP_DIR, assemble_bop, check_models
 from evpose.core.dataset.dask_windows import DaskWindows
+from evpose.core.errors import NotOursError
 
-__all__ = ["export_dataset", "SCENE_DRIVERS"]
+__all__ = ["export_dataset", "check_dataset_export", "SCENE_DRIVERS"]
 
 #: Scenes driven at once (each keeps the workers fed with its chunks; more only holds more files open).
 SCENE_DRIVERS = 3
@@ -41,7 +48,7 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
     from evpose.core.export import export_scene
 
     t0 = time.perf_counter()
-    out_dir = Path(out_dir)
+    out_dir = check_dataset_export(dataset, out_dir, fmt, options.get("objects"))
     out_dir.mkdir(parents=True, exist_ok=True)
     result = BatchResult(dataset.name)
     stop = threading.Event()
@@ -102,6 +109,22 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
             result.failed["bop"] = failure_text(exc)
     result.runtime_s = time.perf_counter() - t0
     return result.ordered([ref.name for ref in dataset.scenes] + ["bop"])
+
+
+def check_dataset_export(dataset, out_dir, fmt: str, objects=None) -> Path:
+    """``out_dir`` of a dataset export of ``objects`` (None: all), refused before anything is written (see
+    the module docstring)."""
+    inputs = dataset.input_folders(out_dir)
+    out_dir = check_out_path(out_dir, "folder", inputs)
+    targets = [out_dir / ref.name for ref in dataset.scenes] + ([out_dir / BOP_DIR] if fmt == "bop" else [])
+    for target in targets:
+        inp = held_input(target, [folder for folder, _ in inputs])
+        if inp is not None:
+            raise NotOursError(f"{out_dir}: --out: {target} would hold {inp}, an input of this export; evpose never "
+                               "writes into its inputs: choose a folder outside the dataset")
+    if fmt == "bop":
+        check_models(dataset, objects)
+    return out_dir
 
 
 def _wait(future) -> None:

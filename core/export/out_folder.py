@@ -15,6 +15,12 @@ else in the folder -- a file the user added, or one of ours changed since -- ref
 ``force``, naming it; so does a folder holding an input (the scene). An earlier export with results
 (journaled windows or a finished export) is replaced only with ``force``; one without (a run that failed
 early) is replaced without. evpose's temporary files are removed on start and on interrupt.
+
+Never inside the scene
+----------------------
+An output folder inside (or equal to) the scene folder or any folder holding a ``scene.toml``, or an
+existing ``--out`` that is not a folder (a device, a FIFO, a socket), is refused before anything is written
+(:func:`check_export_out`).
 """
 from __future__ import annotations
 
@@ -23,14 +29,21 @@ import os
 from pathlib import Path
 
 from evpose.core.data.atomic import write_atomic
-from evpose.core.data.owned_files import held_input, in_the_way, inventory, remove_owned
+from evpose.core.data.owned_files import (
+    check_out_path,
+    held_input,
+    in_the_way,
+    inventory,
+    remove_owned,
+    scene_folders_around,
+)
 from evpose.core.data.owned_log import STATE_DIR
 from evpose.core.export.encode import json_text
 from evpose.core.export.journal import Journal
 from evpose.core.export.options import ExportError
 
 __all__ = ["STATE_DIR", "CONFIG_NAME", "JOURNAL_NAME", "MANIFEST_NAME", "README_NAME", "EXPORT_ROLE",
-           "EXPORT_STATE_FILES", "scene_inputs", "lock_folder", "prepare_out_dir"]
+           "EXPORT_STATE_FILES", "scene_inputs", "check_export_out", "lock_folder", "prepare_out_dir"]
 
 CONFIG_NAME = "config.json"
 JOURNAL_NAME = "journal.jsonl"
@@ -43,7 +56,7 @@ EXPORT_STATE_FILES = (CONFIG_NAME, JOURNAL_NAME)
 
 
 def scene_inputs(scene) -> list[Path]:
-    """Every file an export reads: scene.toml, events (a link and its target), trajectory, meshes,
+    """Every file an export reads: scene.toml (first), events (a link and its target), trajectory, meshes,
     corrections.json. An output folder that holds one of them is never cleared."""
     m = scene.manifest
     out = [Path(m.path), Path(m.events_path), Path(m.trajectory_path)]
@@ -52,6 +65,15 @@ def scene_inputs(scene) -> list[Path]:
     if cp is not None:
         out.append(Path(cp))
     return out
+
+
+def check_export_out(out_dir, scene) -> Path:
+    """Refuse, before anything is written, an output folder inside (or equal to) the folder of ``scene`` (a
+    scene folder or its scene.toml) or any other scene folder, or one that exists and is not a folder."""
+    scene = Path(scene).expanduser()
+    folder = scene if scene.is_dir() else scene.parent if scene.is_file() else None     # None: no scene to read
+    return check_out_path(out_dir, "folder", [(folder, "the scene folder"), *scene_folders_around(out_dir)],
+                          error=ExportError)
 
 
 def lock_folder(out_dir: Path) -> int:
@@ -102,6 +124,8 @@ def prepare_out_dir(out_dir: Path, sha: str, doc: dict, force: bool, inputs=()) 
     cfg = state / CONFIG_NAME
     if out_dir.exists() and not out_dir.is_dir():
         raise ExportError(f"{out_dir}: --out: exists and is not a folder")
+    if inputs:
+        check_export_out(out_dir, inputs[0])          # the scene.toml: never an output inside its folder
     entries = list(out_dir.iterdir()) if out_dir.is_dir() else []
     if entries:
         inp = held_input(out_dir, inputs)

@@ -14,7 +14,8 @@ names the file, the record and the field.
 Shared pieces, one module each: ``failure`` (the error), ``options``, ``report`` (report and context),
 ``time_units``/``time_guess`` (exact conversions, unit guessing), ``pose_checks``/``pose_text``/``static_scene``
 (poses), ``event_sink`` (event stream validation), ``calibration``/``calibration_formats``, ``object_args``
-(``--objects``), ``meshes``, ``output`` (``--out``/``--force``) and ``scene_builder`` (the atomic scene folder).
+(``--objects``), ``meshes``, ``input_folders`` (special files in input folders), ``output`` (``--out``/``--force``)
+and ``scene_builder`` (the atomic scene folder).
 
 Example
 -------
@@ -27,6 +28,7 @@ import importlib
 from typing import Callable
 
 from evpose.core.importers.failure import ImportFailure
+from evpose.core.importers.input_folders import check_input_folders
 from evpose.core.importers.options import ImportOptions
 from evpose.core.importers.output import check_out, import_inputs
 from evpose.core.importers.report import REPORT_FILENAME, ImportContext, ImportReport, stderr_log
@@ -90,7 +92,9 @@ def import_scene(fmt: str, sources, out, options: ImportOptions | None = None, *
     if isinstance(log, str):
         log = stderr_log
     ctx = ImportContext(fmt, sources, opts, progress=progress, cancel=cancel, log=log)
-    check_out(out, opts.force, import_inputs(sources, opts))   # fail fast, before reading anything (checked again when writing)
+    inputs = import_inputs(sources, opts)
+    check_input_folders(inputs)                  # FIFOs, devices, sockets in an input folder: before any open
+    check_out(out, opts.force, inputs)           # fail fast, before reading anything (checked again when writing)
     mod, fn = FORMATS[fmt]
     func = getattr(importlib.import_module(f".{mod}", __name__), fn)
     return func([str(s) for s in sources], out, ctx)

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evpose.core.importers.aedat4_copy import ReadableCopy
+from evpose.core.importers.aedat4_layout import Layout, scan_layout
 from evpose.core.importers.failure import ImportFailure
 from evpose.core.importers.report import ImportContext
 
@@ -43,10 +45,12 @@ _PIPE_BYTES = 1 << 20
 
 
 def _one_line(msg: str) -> str:
-    """dv-processing's multi-line C++ exception text as one line, without its source locations."""
-    lines = [ln.strip() for ln in str(msg).splitlines() if ln.strip()]
+    """dv-processing's multi-line C++ exception text as one line, without its source locations and its stack
+    trace (``Stacktrace: 0# 0x... in dv_processing...so``)."""
+    text = re.split(r"\bStack ?trace:", str(msg), maxsplit=1, flags=re.IGNORECASE)[0].replace("Error info:", "")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     keep = [ln for ln in lines if not re.search(r"\.(hpp|cpp|h)\(\d+\)", ln)] or lines
-    return " ".join(keep)[:500]
+    return " ".join(" ".join(keep).split())[:500]
 
 
 def child_command(path: Path, poses: bool) -> list[str]:
@@ -85,10 +89,28 @@ class Aedat4Reader:
         self.done: dict | None = None
         self.pose_parts: list[tuple[np.ndarray, np.ndarray]] = []
         self.n_events = 0
+        self.layout: Layout | None = None
+        self.copy: ReadableCopy | None = None
 
     # ------------------------------------------------------------------ process
     def __enter__(self) -> "Aedat4Reader":
-        self.proc = subprocess.Popen(child_command(self.path, self.want_poses), stdin=subprocess.DEVNULL,
+        """Check the file's layout (:func:`scan_layout`; a file cut off at the end is read up to the cut, from a
+        readable copy when its packet table is gone), then start the reading process."""
+        try:
+            self.layout = scan_layout(self.path)
+            if self.layout.cut is not None:
+                self._report_cut()
+                if self.layout.table_position >= 0:          # dv-processing refuses a file whose table is gone
+                    self.copy = ReadableCopy(self.path, self.layout)
+            self._start()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _start(self) -> None:
+        source = self.copy.path if self.copy is not None else self.path
+        self.proc = subprocess.Popen(child_command(source, self.want_poses), stdin=subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=self.err, close_fds=True)
         self.fd = self.proc.stdout.fileno()
         try:
@@ -97,30 +119,62 @@ class Aedat4Reader:
             fcntl.fcntl(self.fd, 1031, _PIPE_BYTES)          # F_SETPIPE_SZ: fewer, larger reads
         except (ImportError, OSError):
             pass
-        return self
 
-    @property
-    def header(self) -> dict:
-        """The file's description (the child's ``H`` frame), waited for on first use."""
-        if self._header is None:
-            kind, payload = self._frame(START_TIMEOUT_S)
-            if kind == b"S":
-                kind, payload = self._frame(STALL_TIMEOUT_S + self.path.stat().st_size / OPEN_BYTES_PER_S)
-            if kind != b"H":
-                self._unexpected(kind, payload, "(file)")
-            self._header = json.loads(bytes(payload))
-        return self._header
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
+    def _stop(self) -> None:
         if self.proc is not None:
             if self.proc.poll() is None:
                 self.proc.kill()
             self.proc.wait()
             self.proc.stdout.close()
             self.proc = None
+
+    def _report_cut(self) -> None:
+        lay, rep = self.layout, self.ctx.report
+        lost = lay.file_size - lay.packets_end
+        rep.warn(f"{self.path.name}: the file is cut off at the end ({lay.cut}): read up to the cut, the "
+                 f"{lay.n_packets:,} complete packet(s) before byte {lay.packets_end:,}; {lost:,} byte(s) ignored")
+        rep.counts["aedat4_packets_read"] = lay.n_packets
+        rep.counts["aedat4_bytes_ignored"] = lost
+
+    @property
+    def header(self) -> dict:
+        """The file's description (the child's ``H`` frame), waited for on first use. When dv-processing refuses
+        a file whose packet table is in it, the packets are read once more without the table (a readable copy),
+        reported; if that fails too, its first refusal is the error."""
+        if self._header is None:
+            kind, payload = self._open_frames()
+            if kind == b"X" and self.copy is None and self.layout is not None and self.layout.table_usable:
+                first = (kind, bytes(payload))
+                self._stop()
+                self.copy = ReadableCopy(self.path, self.layout)
+                self._start()
+                kind, payload = self._open_frames()
+                if kind != b"H":
+                    kind, payload = first
+                else:
+                    self.ctx.report.warn(f"{self.path.name}: dv-processing cannot read its packet table ("
+                                         f"{_one_line(json.loads(first[1]).get('error', '?'))}): its "
+                                         f"{self.layout.n_packets:,} packet(s) were read without it")
+            if kind != b"H":
+                self._unexpected(kind, payload, "(file)")
+            self._header = json.loads(bytes(payload))
+        return self._header
+
+    def _open_frames(self) -> tuple[bytes, memoryview]:
+        """The child's first frame after loading the library (``H``, or ``X`` when it refuses the file)."""
+        kind, payload = self._frame(START_TIMEOUT_S)
+        if kind == b"S":
+            kind, payload = self._frame(STALL_TIMEOUT_S + self.path.stat().st_size / OPEN_BYTES_PER_S)
+        return kind, payload
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._stop()
+        if self.copy is not None:
+            self.copy.remove()
+            self.copy = None
         self.err.close()
 
     # ------------------------------------------------------------------ frames

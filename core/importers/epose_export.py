@@ -78,6 +78,8 @@ def import_epose_export(sources, out, ctx: ImportContext) -> dict:
     windows = ExportWindows(ctx, first, K, objects, cls_map)
     with SceneBuilder(out, ctx) as sb:
         sink = sb.event_sink(camera.width, camera.height)
+        if not opts.one_based:
+            sink.off_sensor_hint = " (the .mat pixels may be 1-based: --one-based)"
         for wi, (k, path) in enumerate(wins):
             windows.read(wi, k, path, sink)
             ctx.progress(0.9 * (wi + 1) / len(wins), f"window {wi + 1}/{len(wins)}")

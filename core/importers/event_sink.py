@@ -1,12 +1,19 @@
 """Validation of the event stream on its way into the scene's ``events.h5`` (:class:`EventSink`).
 
-Out-of-sensor events are dropped and counted, events unsorted inside a chunk are sorted (stable, counted),
-and chunks that overlap in time (e.g. ROS messages) are merged by a **bounded stream merge**: the sink keeps
-the newest ``reorder_window_us`` of events (default 100 ms, at most ``max_pending`` events) in memory and
-writes everything older. An event that arrives later than that (older than the newest event seen so far
-minus the window, or than an event already written) is an error (``--repair``: dropped and counted), whatever
-the buffer holds, so the outcome does not depend on file size. Memory is bounded by the window, never by the
-file.
+Without ``--repair`` no event is dropped or re-timed: an event off the sensor, a bad polarity or a time that
+steps back by more than the reorder window is refused with one line naming the file, the record, the event's
+index in it and the field. With ``--repair`` the events off the sensor and those too far out of order are
+dropped, each kind counted in ``import_report.json``.
+
+Time order: an event older than the newest event before it (in the same chunk or an earlier one) is *out of
+order*. Within ``reorder_window_us`` (default 100 ms, ``--reorder-window-ms``; 0 accepts no disorder) it is
+put in its place, with or without ``--repair``, and counted (``events_out_of_order``; also
+``events_decreasing_steps`` inside chunks and ``chunks_overlapping`` for chunks, e.g. ROS messages, that
+overlap earlier ones). Its time is never changed. Beyond the window it is *late* (as is an event older than
+one already written). The verdict depends only on the times seen so far, never on how the stream is cut into
+chunks or on the file size. The merge is a **bounded stream merge**: the sink keeps the newest
+``reorder_window_us`` of events (at most ``max_pending`` events) in memory and writes everything older, so
+memory is bounded by the window, never by the file.
 """
 from __future__ import annotations
 
@@ -53,10 +60,11 @@ class EventSink:
     writer : EventWriter or None
         None = validate only (reference/link modes).
     width, height : int
-        Sensor size; events outside ``[0, width) x [0, height)`` are dropped and counted.
+        Sensor size; an event outside ``[0, width) x [0, height)`` is refused (``--repair``: dropped, counted).
     reorder_window_us : int
-        Bounded stream merge: events are held back until they are older than the newest event seen minus
-        this window; an event older than one already written is "late" (error, or dropped with ``--repair``).
+        How far (µs) an event may be out of time order and still be put in its place (counted); events are
+        held back until they are older than the newest event seen minus this window. An event further out of
+        order, or older than one already written, is "late": refused (``--repair``: dropped, counted).
     """
 
     def __init__(self, ctx: ImportContext, writer: EventWriter | None, width: int, height: int, *,
@@ -71,31 +79,40 @@ class EventSink:
         self.last_written: int | None = None
         self.n_in = self.n_out = 0
         self.n_dropped_sensor = self.n_unsorted_chunks = self.n_inversions = 0
-        self.n_overlap_chunks = self.n_late = self.n_nonfinite = 0
+        self.n_overlap_chunks = self.n_late = self.n_nonfinite = self.n_out_of_order = 0
         self.t_first = self.t_last = self.t_origin = None
         self.max_span_us = int(float(ctx.options.max_span_s) * 1e6)
         self._where = ("(events)", "-")
         self._first_sensor_drop = None
         self.x_max = self.y_max = -1
         self.x_min = self.y_min = None
+        #: Appended to the refusal of an event off the sensor (a format's likely cause, e.g. 1-based pixels).
+        self.off_sensor_hint = ""
+        self._first: int | None = None
 
-    def add(self, x, y, t_us, p, *, file, record: str) -> None:
+    def add(self, x, y, t_us, p, *, file, record: str, first: int | None = None) -> None:
         """Add one chunk. ``t_us`` int64 µs (absolute event clock); x/y integer pixels (any int dtype, floats
-        must be whole); p in {0, 1}, {-1, 1} or bool."""
+        must be whole); p in {0, 1}, {-1, 1} or bool. ``first``: the index of the chunk's first event in the file,
+        when the file is a plain sequence of events (an error then names the event by its index in the file;
+        otherwise by ``record`` and its index in the chunk)."""
         self.ctx.check_cancel()
+        self._first = first
         t = self._check_times(t_us, x, y, p, file, record)
         if len(t) == 0:
             return
         self.n_in += len(t)
-        cols = self._on_sensor(*self._integer_columns(x, y, p, file, record), t, record)
+        cols = self._on_sensor(*self._integer_columns(x, y, p, file, record), t, file, record)
         if cols is None:
             return
-        cols = self._sorted(*cols)
         self._check_span(cols[2], file, record)
-        cols = self._drop_late(*cols, file, record)
+        cols = self._in_time_order(*cols, file, record)
         if cols is None:
             return
         self._hold(*cols, file, record)
+
+    def _event(self, record: str, i: int) -> str:
+        """Where event ``i`` of the current chunk is, for a message."""
+        return f"event {self._first + i}" if self._first is not None else f"{record}, event {i}"
 
     # ------------------------------------------------------------------- the steps of add()
     @staticmethod
@@ -129,14 +146,16 @@ class EventSink:
             pmin, pmax = int(pi.min()), int(pi.max())
             if pmin < -1 or pmax > 1:
                 i = int(np.flatnonzero((pi < -1) | (pi > 1))[0])
-                raise ImportFailure(file, f"{record}, event {i}", "p", f"polarity must be 0/1 or -1/+1, got {int(pi[i])}")
+                raise ImportFailure(file, self._event(record, i), "p",
+                                    f"polarity must be 0/1 or -1/+1, got {int(pi[i])}")
             p8 = (pi > 0).view(np.uint8) if pmin < 0 else pi.astype(np.uint8, copy=False)
         else:
             p8 = pi.astype(np.uint8, copy=False)
         return xi, yi, p8, keep
 
-    def _on_sensor(self, xi, yi, p8, keep, t, record: str):
-        """The rows inside the sensor (and finite), counting the dropped ones; None when none is left."""
+    def _on_sensor(self, xi, yi, p8, keep, t, file, record: str):
+        """The rows inside the sensor (and finite). An event off the sensor is refused, or with ``--repair``
+        dropped and counted; None when no row is left."""
         n = len(t)
         inside = (xi >= 0) & (xi < self.width) & (yi >= 0) & (yi < self.height)
         if keep is not None:
@@ -145,9 +164,14 @@ class EventSink:
         else:
             n_sensor = n - int(np.count_nonzero(inside))
         if n_sensor:
+            i = int(np.flatnonzero(~inside if keep is None else (~inside & keep))[0])
+            if not self.ctx.repair:
+                fld, v, side = ("x", xi[i], self.width) if not 0 <= xi[i] < self.width else ("y", yi[i], self.height)
+                raise ImportFailure(file, self._event(record, i), fld, f"{int(v)} is outside the {self.width}x"
+                                    f"{self.height} sensor ({fld} in [0, {side})){self.off_sensor_hint}; pass "
+                                    "--repair to drop events off the sensor")
             if self._first_sensor_drop is None:
-                i = int(np.flatnonzero(~inside if keep is None else (~inside & keep))[0])
-                self._first_sensor_drop = f"{record}, event {i}: (x={int(xi[i])}, y={int(yi[i])})"
+                self._first_sensor_drop = f"{self._event(record, i)}: (x={int(xi[i])}, y={int(yi[i])})"
             self.n_dropped_sensor += n_sensor
         if n_sensor or keep is not None:
             xi, yi, t, p8 = xi[inside], yi[inside], t[inside], p8[inside]
@@ -160,46 +184,58 @@ class EventSink:
             self.y_min = mny if self.y_min is None else min(self.y_min, mny)
         return xi, yi, t, p8
 
-    def _sorted(self, xi, yi, t, p8):
-        """Sort inside the chunk (stable: equal times keep their file order), counting the decreasing steps."""
-        if len(t) > 1:
-            dec = np.count_nonzero(t[1:] < t[:-1])
-            if dec:
-                self.n_unsorted_chunks += 1
-                self.n_inversions += int(dec)
-                o = np.argsort(t, kind="stable")
-                xi, yi, t, p8 = xi[o], yi[o], t[o], p8[o]
-        return xi, yi, t, p8
-
     def _check_span(self, t, file, record: str) -> None:
         """A corrupt time stamp (or a wrong unit) would make the ms index of the event file explode."""
         if self.t_origin is None:
             self.t_origin = int(t[0])
-        if int(t[-1]) - self.t_origin > self.max_span_us or self.t_origin - int(t[0]) > self.max_span_us:
+        if int(t.max()) - self.t_origin > self.max_span_us or self.t_origin - int(t.min()) > self.max_span_us:
             j = int(np.argmax(np.abs(t - self.t_origin) > self.max_span_us))
-            raise ImportFailure(file, f"{record}, event {j}", "t", f"t={int(t[j])} µs is {abs(int(t[j]) - self.t_origin) / 3.6e9:.3g} h "
-                                f"from the first event (t={self.t_origin} µs): more than --max-span-s "
-                                f"{self.max_span_us / 1e6:g} s (corrupt time stamp or wrong time unit?)")
+            raise ImportFailure(file, self._event(record, j), "t", f"t={int(t[j])} µs is "
+                                f"{abs(int(t[j]) - self.t_origin) / 3.6e9:.3g} h from the first event "
+                                f"(t={self.t_origin} µs): more than --max-span-s {self.max_span_us / 1e6:g} s "
+                                "(corrupt time stamp or wrong time unit?)")
 
-    def _drop_late(self, xi, yi, t, p8, file, record: str):
-        """Late events: older than the newest event seen minus the window (or than one already written).
-        Refused, or dropped and counted with ``--repair``; None when none is left."""
-        thr = self.last_written
-        if self.pending_max is not None:
-            thr = max(thr if thr is not None else self.pending_max - self.window, self.pending_max - self.window)
-        if thr is not None and t[0] < thr:
-            late = t < thr
-            nl = int(np.count_nonzero(late))
-            if not self.ctx.repair:
-                newest = self.pending_max if self.pending_max is not None else self.last_written
-                raise ImportFailure(file, record, "t", f"{nl} event(s) from t={int(t[0])} µs arrive more than the reorder "
-                                    f"window ({self.window} µs) after later events (newest so far t={newest} µs); the "
-                                    "stream is not sorted. Pass --repair to drop them, or a larger --reorder-window-ms")
-            self.n_late += nl
+    def _newest(self) -> int | None:
+        """The newest event time seen so far (µs), None before the first event."""
+        return self.pending_max if self.pending_max is not None else self.last_written
+
+    def _in_time_order(self, xi, yi, t, p8, file, record: str):
+        """The chunk sorted by time (stable). Events out of order by at most the window are counted; late ones
+        (further, or older than an event already written) are refused, or with ``--repair`` dropped and
+        counted. None when no row is left."""
+        newest = self._newest()
+        dec = np.count_nonzero(t[1:] < t[:-1])
+        if not dec and (newest is None or t[0] >= newest):
+            return xi, yi, t, p8
+        before = np.empty_like(t)                  # the newest time before each event
+        before[0] = t[0] if newest is None else newest
+        np.maximum.accumulate(t[:-1], out=before[1:])
+        if newest is not None:
+            np.maximum(before, newest, out=before)
+        limit = before - self.window
+        if self.last_written is not None:
+            np.maximum(limit, self.last_written, out=limit)
+        late = t < limit
+        n_late = int(np.count_nonzero(late))
+        if n_late and not self.ctx.repair:
+            i = int(np.flatnonzero(late)[0])
+            raise ImportFailure(file, self._event(record, i), "t", f"t={int(t[i])} µs is {int(before[i] - t[i])} µs "
+                                f"older than an event before it (t={int(before[i])} µs): out of time order by more "
+                                f"than the reorder window ({self.window} µs). Pass --repair to drop such events, or "
+                                "a larger --reorder-window-ms")
+        self.n_out_of_order += int(np.count_nonzero(t < before)) - n_late
+        if n_late:
+            self.n_late += n_late
             ok = ~late
             xi, yi, t, p8 = xi[ok], yi[ok], t[ok], p8[ok]
             if len(t) == 0:
                 return None
+            dec = np.count_nonzero(t[1:] < t[:-1])
+        if dec:
+            self.n_unsorted_chunks += 1
+            self.n_inversions += int(dec)
+            o = np.argsort(t, kind="stable")
+            xi, yi, t, p8 = xi[o], yi[o], t[o], p8[o]
         return xi, yi, t, p8
 
     def _hold(self, xi, yi, t, p8, file, record: str) -> None:
@@ -261,9 +297,13 @@ class EventSink:
         if self.n_nonfinite:
             r.repair(f"dropped {self.n_nonfinite} event(s) with a NaN/inf coordinate or polarity (--repair)")
             r.counts["events_dropped_nonfinite"] = self.n_nonfinite
+        if self.n_out_of_order:
+            r.counts["events_out_of_order"] = self.n_out_of_order
         if self.n_unsorted_chunks:
             r.repair(f"sorted events inside {self.n_unsorted_chunks} chunk(s)/message(s) with unsorted times "
-                     f"({self.n_inversions} decreasing step(s)); stable sort, equal times keep file order")
+                     f"({self.n_inversions} decreasing step(s); {self.n_out_of_order} event(s) out of order, all "
+                     f"within the reorder window of {self.window} µs); stable sort, equal times keep file order, no "
+                     "time changed")
             r.counts["events_decreasing_steps"] = self.n_inversions
         if self.n_overlap_chunks:
             r.repair(f"merged {self.n_overlap_chunks} chunk(s)/message(s) that overlap earlier ones in time "

@@ -1,5 +1,10 @@
 """Object meshes into the scene's ``models/`` folder: copied verbatim (with an OBJ's material files) or
-written as PLY from generated vertices and faces."""
+written as PLY from generated vertices and faces.
+
+A mesh file is loaded once on import, as the scene will load it (:meth:`~evpose.core.data.objects.ObjectModel.
+from_file`: a regular file of sane size that trimesh reads as triangles with finite vertices), so that a file
+that is not a mesh (random bytes, text, a point cloud) is refused with one line naming it, instead of making a
+scene that fails later."""
 from __future__ import annotations
 
 import shutil
@@ -26,8 +31,9 @@ def place_mesh(mesh, models_dir: Path, safe: str, name: str, report: ImportRepor
         trimesh.Trimesh(np.asarray(mesh[0]), np.asarray(mesh[1]), process=False).export(dst)
         return dst
     src = Path(mesh)
-    if not src.is_file():
+    if not src.exists():
         raise ImportFailure(src, name, "mesh", "mesh file not found")
+    check_mesh(src, name)
     inputs.append(src)
     if src.suffix.lower() not in MESH_SUFFIXES:
         report.warn(f"{src}: mesh suffix {src.suffix!r} is not one of {MESH_SUFFIXES}; copied anyway")
@@ -38,6 +44,18 @@ def place_mesh(mesh, models_dir: Path, safe: str, name: str, report: ImportRepor
             if mtl.is_file() and not (dst.parent / mtl.name).exists():
                 shutil.copyfile(mtl, dst.parent / mtl.name)
     return dst
+
+
+def check_mesh(src: Path, name: str) -> None:
+    """Refuse ``src`` unless it loads as a triangle mesh (the check the scene makes when it opens)."""
+    from evpose.core.data.objects import ObjectModel, ObjectModelError
+
+    try:
+        ObjectModel.from_file(src, name=name)
+    except ObjectModelError as exc:
+        reason = str(exc)
+        reason = reason[len(f"{src}: "):] if reason.startswith(f"{src}: ") else reason
+        raise ImportFailure(src, name, "mesh", reason) from None
 
 
 def _obj_material_files(obj: Path) -> list[Path]:

@@ -24,7 +24,7 @@ class ImportOptions:
     Units: µs for times, metres for lengths unless stated.
     """
 
-    repair: bool = False                 # repair what can be repaired (sort, drop, project) instead of refusing
+    repair: bool = False                 # drop bad events, project rotations, sort poses instead of refusing
     force: bool = False                  # replace an existing non-empty --out folder
     name: str | None = None              # scene name (default: --out folder name)
     camera: str | None = None            # calibration file: our JSON, OpenCV/YCB-Ev JSON, DSEC/Kalibr YAML, RPG calib.txt

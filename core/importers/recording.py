@@ -84,7 +84,7 @@ def build_recording_scene(ctx: ImportContext, out, rec: Path, camera: CameraMode
         sink = sb.event_sink(camera.width, camera.height)
         n = 0
         for x, y, t, p, record, fraction in chunks:
-            sink.add(x, y, t, p, file=rec, record=record)
+            sink.add(x, y, t, p, file=rec, record=record, first=n)
             n += len(t)
             ctx.progress(0.97 * fraction, f"{n:,} events")
         sb.finish_events(sink, rec)

@@ -22,6 +22,7 @@ from evpose.core.data.event_writer import EventWriter
 from evpose.core.data.geometry import ROTATION_TOLERANCE, make_T, orthonormalize
 from evpose.core.data.manifest import SCENE_FILENAME, ObjectSpec, SceneError, SceneManifest
 from evpose.core.data.manifest_reader import load_manifest
+from evpose.core.data.objects import size_warnings
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.importers.event_sink import EventSink
 from evpose.core.importers.failure import ImportFailure
@@ -172,6 +173,7 @@ class SceneBuilder:
             self.ctx.report.assume(f"clock prior offset {int(self.ctx.options.offset_us)} µs (--offset-us)")
             clock_offset_us = int(self.ctx.options.offset_us)
         name = name or self.ctx.options.name or self.out.name
+        warn_if_no_time_overlap(self.ctx.report, int(clock_offset_us), float(clock_skew_ppm))
         specs = [ObjectSpec(o.name, o.mesh, o.T_base_obj, o.mesh_scale, o.class_id, o.symmetric, o.repair_rotation,
                             o.rotation_residual, o.T_base_obj_raw) for o in self.objects]
         manifest = SceneManifest(self.tmp / SCENE_FILENAME, name, camera, self.tmp / "events.h5",
@@ -181,6 +183,8 @@ class SceneBuilder:
         doc["events"]["path"] = self.events_ref          # link/reference modes: never resolved through a symlink
         atomic_write_text(self.tmp / SCENE_FILENAME, tomli_w.dumps(doc))
         rep = self.ctx.report
+        for line in size_warnings(specs):              # the scene is written; evpose refuses it until fixed
+            rep.warn(line)
         rep.details["runtime_s"] = time.perf_counter() - self.ctx.t_start
         rep.details["scene"] = {"name": name, "camera": camera.to_dict(), "clock": {
             "offset_us": int(clock_offset_us), "skew_ppm": float(clock_skew_ppm)}, "events_path": self.events_ref}
@@ -200,6 +204,25 @@ class SceneBuilder:
             self.staging.commit(self.inputs, self.ctx.options.force)
         except NotOurs as exc:
             raise ImportFailure(exc.path, "(output)", "--out", exc.reason) from None
+
+
+def warn_if_no_time_overlap(report, offset_us: int, skew_ppm: float) -> None:
+    """Warn when the events, mapped to pose time by the clock prior (``offset_us`` µs, ``skew_ppm``; DESIGN
+    section 3), and the trajectory do not overlap in time: no window of such a scene gets a label until its clock
+    is corrected. A warning, not a refusal: the clock is what ``sync`` and the corrections fix, and a scene
+    imported with the wrong prior can still be corrected. ``time_overlap_us`` goes into the report."""
+    ev, tr = report.details.get("events"), report.details.get("trajectory")
+    if not ev or not tr or ev.get("t_first_us") is None or tr.get("t_first_us") is None:
+        return
+    t0, t1 = int(ev["t_first_us"]), int(ev["t_last_us"])
+    p0, p1 = (t + offset_us + skew_ppm * 1e-6 * (t - t0) for t in (t0, t1))
+    overlap = min(p1, tr["t_last_us"]) - max(p0, tr["t_first_us"])
+    report.details["time_overlap_us"] = int(max(overlap, 0))
+    if overlap < 0:
+        report.warn(f"the events [{t0}, {t1}] µs (pose time [{int(p0)}, {int(p1)}] µs with the clock prior offset "
+                    f"{offset_us} µs) and the trajectory [{tr['t_first_us']}, {tr['t_last_us']}] µs do not overlap "
+                    "in time: no window can get a label (wrong time unit or clock? --offset-us sets the prior; the "
+                    "offset can also be corrected later)")
 
 
 def _json_default(o):

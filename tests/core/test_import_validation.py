@@ -87,7 +87,8 @@ def test_late_events_refused_or_dropped(src, tmp_path):
     assert_events_equal(got, ev)
 
 
-def test_out_of_sensor_events_dropped_and_counted(src, tmp_path):
+def test_out_of_sensor_events_refused_or_dropped_and_counted(src, tmp_path):
+    """Issue 22: without --repair an event off the sensor is refused (it used to be dropped silently)."""
     ev = src.ev
     x = ev.x.astype(np.int16).copy()
     y = ev.y.astype(np.int16).copy()
@@ -96,7 +97,10 @@ def test_out_of_sensor_events_dropped_and_counted(src, tmp_path):
     p = tmp_path / "r.npz"
     np.savez(p, x=x, y=y, t=ev.t, p=ev.p, t_us=src.traj.t_us, position=src.traj.positions_m,
              quaternion=src.traj.quats_xyzw, K=src.cam.K, dist=src.cam.dist, width=173, height=130)
-    import_scene("npz", [p], tmp_path / "scene")
+    with pytest.raises(ImportFailure, match=r"r\.npz: events \[0, \d+\), event 5: x: 173 is outside the 173x130 "
+                                            r"sensor .*--repair"):
+        import_scene("npz", [p], tmp_path / "refused")
+    import_scene("npz", [p], tmp_path / "scene", repair=True)
     got, _, _, rep = read_scene(tmp_path / "scene")
     keep = np.ones(len(ev), bool)
     keep[bad] = False
@@ -373,7 +377,10 @@ def test_epose_export_one_based_and_boundary(src, tmp_path):
     got, _, _, rep = read_scene(tmp_path / "s1")
     n = int(wins[-1][0][-1]) + 1
     assert_events_equal(got, src.ev[np.arange(n)])
-    import_scene("epose-export", [folder], tmp_path / "s2", objects=meshes, width=173, height=130)
+    # issue 22: events off the sensor are refused without --repair (they were dropped silently), with the hint
+    with pytest.raises(ImportFailure, match=r"y: 130 is outside the 173x130 sensor .*1-based: --one-based"):
+        import_scene("epose-export", [folder], tmp_path / "refused", objects=meshes, width=173, height=130)
+    import_scene("epose-export", [folder], tmp_path / "s2", objects=meshes, width=173, height=130, repair=True)
     _, _, _, rep = read_scene(tmp_path / "s2")
     assert rep["counts"].get("events_dropped_outside_sensor", 0) > 0
     assert any("1-based" in w for w in rep["warnings"])

@@ -86,6 +86,20 @@ def test_import_rpg_into_its_own_source_folder_is_refused(sources, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]          # no staging folder left either
 
 
+def test_import_and_synth_into_a_folder_inside_an_input_or_a_scene_are_refused(sources, tmp_path, tiny_scene_dir):
+    """Issue 22: outputs never land inside inputs -- a new scene folder inside the source folder of the import, or
+    inside another scene's folder, is refused before anything is written (no --force needed to get there)."""
+    src = copy_of(sources["rpg"], tmp_path / "seq")
+    scene = copy_of(tiny_scene_dir, tmp_path / "scene")
+    before, before_scene = snapshot(src), snapshot(scene)
+    r = run_cli("import", "rpg", src, "--out", src / "imported", "-q", "--width", sources["width"],
+                "--height", sources["height"])
+    assert_clean_error(r, str(src / "imported"), "input folder")
+    r = run_cli("synth", scene / "models" / "inner", "-q", "--duration", "0.05", "--objects", "box")
+    assert_clean_error(r, str(scene / "models" / "inner"), "scene folder")
+    assert snapshot(src) == before and snapshot(scene) == before_scene
+
+
 def test_import_dsec_link_into_the_folder_holding_the_source_is_refused(sources, tmp_path):
     """Issue: ``import dsec ... --events-mode link --out <folder holding the source> --force`` deleted the
     source and left a dangling link. Also through a symlinked --out and a symlinked source."""

@@ -160,7 +160,7 @@ def test_a_damaged_partial_file_does_not_block_the_rerun(tiny_scene_dir, tmp_pat
         data = data[: len(data) // 2]
     else:
         assert data[8] == 0                          # superblock version 0: end of allocation at byte 40
-        data[40:48] = struct.pack("<Q", int(len(data) * 0.9))
+        data[40:48] = struct.pack("<Q", _last_chunk_end(part) - 1)     # the last data chunk ends past it
     part.write_bytes(bytes(data))
     if damage == "end_of_allocation":                # it opens and says every row is done
         import h5py
@@ -171,6 +171,21 @@ def test_a_damaged_partial_file_does_not_block_the_rerun(tiny_scene_dir, tmp_pat
     assert_ok(r)
     assert json.loads(r.stdout)["skipped_complete"] == 0          # started over
     assert_same_h5(out / "tiny.h5", reference_h5)
+
+
+def _last_chunk_end(path) -> int:
+    """The largest end offset (bytes) of a data chunk in the HDF5 file ``path``."""
+    import h5py
+
+    end = 0
+
+    def info(ci):
+        nonlocal end
+        end = max(end, ci.byte_offset + ci.size)
+
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda _n, o: o.id.chunk_iter(info) if isinstance(o, h5py.Dataset) and o.chunks else None)
+    return end
 
 
 # ------------------------------------------------------------------------------------------- file formats
