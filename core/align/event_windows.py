@@ -15,13 +15,16 @@ import numpy as np
 from evpose.core.align.scene_proxy import scene_motion_proxy
 from evpose.core.data.geometry import inv_T
 
-__all__ = ["MIN_WINDOW_PX_S", "MIN_WINDOW_SHARE", "EventWindow", "choose_windows", "window_speeds_px_s"]
+__all__ = ["MIN_WINDOW_PX_S", "MIN_WINDOW_SHARE", "MIN_CLUSTERS", "EventWindow", "choose_windows", "window_clusters",
+           "window_speeds_px_s"]
 
 #: Windows are taken where the image moves at least this fast (px/s at half DAVIS346 resolution,
 #: scaled by fx / 146): a camera speed of ~0.07 m/s past a scene 0.5 m away; on slower sequences
 #: at least MIN_WINDOW_SHARE of the sequence's fast image speed (95th percentile), at least 1 px/s.
 MIN_WINDOW_PX_S = 20.0
 MIN_WINDOW_SHARE = 0.25
+#: Fewest groups of windows the standard errors are computed over (:func:`window_clusters`).
+MIN_CLUSTERS = 4
 
 
 class EventWindow:
@@ -89,3 +92,33 @@ def choose_windows(scene, n_windows: int, window_us: int, objects=None, clock=No
     pick = cand[np.unique(np.linspace(0, len(cand) - 1, min(n_windows, len(cand))).round().astype(int))]
     return [(int(t - window_us // 2), int(t - window_us // 2 + window_us)) for t in pick]
 
+
+def window_clusters(scene, windows, clock=None, proxy=None, min_clusters: int = MIN_CLUSTERS) -> np.ndarray:
+    """A group id per window of ``windows`` (list of ``(t0_us, t1_us)``) for the standard errors: the camera's
+    move (a run of image motion between two stops, on a 5 ms grid) each window lies in. Windows of one move share
+    its direction, speed and viewpoint, so their errors are alike: they are one piece of evidence, not several.
+    With fewer than ``min_clusters`` moves the windows are grouped into ``min_clusters`` runs of consecutive
+    windows instead (as evenly as possible), so a recording of one long move still gets a spread."""
+    n = len(windows)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    centres = np.array([(a + b) // 2 for a, b in windows], np.int64)
+    ids = np.full(n, -1, np.int64)
+    ev = scene.events
+    clock = clock or scene.clock
+    if ev.t_first_us is not None and ev.t_last_us > ev.t_first_us:
+        step = 5000
+        grid = np.arange(ev.t_first_us, ev.t_last_us, step, dtype=np.int64)
+        sp, ok = window_speeds_px_s(scene, grid, step, clock, proxy)
+        fast = float(np.percentile(sp[ok], 95)) if ok.any() else 0.0
+        thr = max(min(MIN_WINDOW_PX_S * float(scene.camera.K[0, 0]) / 146.0, MIN_WINDOW_SHARE * fast), 1.0)
+        moving = ok & (sp >= 0.5 * thr)
+        run = np.cumsum(np.r_[moving[:1], moving[1:] & ~moving[:-1]])        # id of the move each grid point is in
+        k = np.clip(np.searchsorted(grid, centres, side="right") - 1, 0, len(grid) - 1)
+        ids = np.where(moving[k], run[k], -1)
+    order = np.argsort(centres, kind="stable")
+    if len(np.unique(ids[ids >= 0])) + int(np.count_nonzero(ids < 0)) < min(min_clusters, n):
+        return (np.arange(n)[np.argsort(order)] * min(min_clusters, n)) // n     # consecutive runs of windows
+    lone = ids < 0                                       # a window between moves: a group of its own
+    ids[lone] = ids.max(initial=0) + 1 + np.arange(int(lone.sum()))
+    return np.unique(ids, return_inverse=True)[1]

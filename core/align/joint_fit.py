@@ -18,7 +18,10 @@ clock and the poses converges slowly along the directions where they trade off (
 looks like a shift along the motion) and its per-stage standard errors ignore that trade-off; the joint
 curvature carries it.
 
-Standard errors are the cluster-robust sandwich over windows (:func:`evpose.core.align.joint_solve.sandwich`).
+Standard errors are the cluster-robust sandwich (:func:`evpose.core.align.joint_solve.sandwich`) over the camera's
+moves (:func:`evpose.core.align.event_windows.window_clusters`: windows of one move share its errors), leaving out
+the rotations the silhouettes cannot show (:func:`_symmetry_axes`: the spin of a solid of revolution, held at the
+start).
 The skew is kept when its standard error is at most :data:`SKEW_MAX_STD_PPM` or its change stands out by
 :data:`SKEW_SIGMAS` standard errors; otherwise the start's skew is kept and the finest level is re-solved without it.
 """
@@ -30,7 +33,8 @@ import time
 import numpy as np
 
 from evpose.core.align.edges import EdgeSetup, _beta
-from evpose.core.align.event_windows import choose_windows
+from evpose.core.align.event_windows import choose_windows, window_clusters
+from evpose.core.align.joint_check import check_held_out
 from evpose.core.align.joint_model import (HAND_EYE_RADIUS_M, HandEyeScene, JointState, gather, he_delta,
                                            jacobian, set_window_clock)
 from evpose.core.align.joint_result import JOINT_SIGMAS_PX, JointParams, JointResult, ObjectFit
@@ -54,6 +58,15 @@ MIN_OBJECT_EVENTS = 30
 #: The skew is free at this many of the finest kernel widths only: a skew of 10 ppm moves the clock by 25 µs
 #: over 2.5 s, which the coarse widths cannot see, while a free skew there trades off against the pose errors.
 SKEW_LEVELS = 2
+#: Two objects coincide (:func:`_twins`) when their sizes agree within TWIN_SIZE_REL of the larger extent, their
+#: centres lie within TWIN_CENTRE_REL of it and they are turned less than TWIN_DEG from each other.
+TWIN_SIZE_REL = 0.1
+TWIN_CENTRE_REL = 0.1
+TWIN_DEG = 10.0
+#: Weight of the prior that holds a rotation the silhouettes cannot show (per associated event and rotation unit
+#: squared): ~10^4 times the events' own curvature at the finest width, so the held spin stays within ~10^-4 of a
+#: rotation unit of its start.
+HOLD_WEIGHT = 1e6
 
 
 class _Fit:
@@ -66,11 +79,13 @@ class _Fit:
         # the windows' per-event camera poses come from poses() (knot-interpolated), not EdgeSetup's exact ones
         self.setup = EdgeSetup(self.view, names, windows, state.clock(), p.refine_params(), event_poses=False)
         self.K = scene.camera.K
+        self.symmetry = [scene.model(n).symmetry for n in names]
         self.state = state
         self.radii = np.array([me.radius for me in self.setup.edges])
         self._clock_key = None
         self.poses(state)
         self.contours = None             # the last contours (their z-buffers serve the next look)
+        self.clusters = None             # a group id per window for the standard errors (None: each window)
         self._looked = None              # (state, contours) of the last look
 
     def centres(self, state: JointState) -> np.ndarray:
@@ -130,12 +145,44 @@ def _layout(n: int, p: JointParams, names, skew_free: bool, held=()) -> Layout:
     return Layout(n, p.clock, skew_free, p.hand_eye, objs)
 
 
-def _held_objects(fit: _Fit, sigma: float, p: JointParams, names) -> dict:
-    """Objects to hold at their start for lack of evidence (:data:`MIN_OBJECT_WINDOWS`), with the reason."""
-    d = fit.data(fit.state, fit.look(fit.state), sigma)
+def _twins(fit: _Fit, names, counts) -> dict:
+    """Objects that coincide with another at the start (same size within :data:`TWIN_SIZE_REL`, centres closer than
+    :data:`TWIN_CENTRE_REL` of their size, turned less than :data:`TWIN_DEG`): their silhouettes are one, so the
+    events cannot tell which of the two they belong to. Of each pair the one with fewer associated events
+    (``counts``; the later one on a tie) is held, with the reason."""
+    from evpose.core.data.geometry import rotation_angle
+
     held = {}
+    models = fit.setup.models
+    size = [np.asarray(m.bbox_min_max[1]) - np.asarray(m.bbox_min_max[0]) for m in models]
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if names[i] in held or names[j] in held:
+                continue
+            ext = float(max(size[i].max(), size[j].max()))
+            if np.any(np.abs(np.sort(size[i]) - np.sort(size[j])) > TWIN_SIZE_REL * ext):
+                continue
+            Ti, Tj = fit.state.T_bo[i], fit.state.T_bo[j]
+            ci = Ti[:3, :3] @ models[i].bbox_center_m + Ti[:3, 3]
+            cj = Tj[:3, :3] @ models[j].bbox_center_m + Tj[:3, 3]
+            dist = float(np.linalg.norm(ci - cj))
+            ang = float(np.degrees(rotation_angle(Ti[:3, :3].T @ Tj[:3, :3])))
+            if dist > TWIN_CENTRE_REL * ext or ang > TWIN_DEG:
+                continue
+            k, other = (j, i) if counts[j] <= counts[i] else (i, j)
+            held[names[k]] = (f"it coincides with {names[other]} (same size, centres {dist * 1e3:.1f} mm apart, "
+                              f"turned {ang:.1f} deg): the events cannot tell the two apart; pose kept")
+    return held
+
+
+def _held_objects(fit: _Fit, sigma: float, p: JointParams, names) -> dict:
+    """Objects to hold at their start, with the reason: without evidence (:data:`MIN_OBJECT_WINDOWS`), or
+    coinciding with another object (:func:`_twins`)."""
+    d = fit.data(fit.state, fit.look(fit.state), sigma)
+    counts = np.zeros(len(names), np.int64) if d is None else np.bincount(d.obj, minlength=len(names))
+    held = {n: why for n, why in _twins(fit, names, counts).items() if p.objects is None or n in p.objects}
     for i, name in enumerate(names):
-        if p.objects is not None and name not in p.objects:
+        if (p.objects is not None and name not in p.objects) or name in held:
             continue
         n_win = 0 if d is None else int(np.sum(np.bincount(d.win[d.obj == i], minlength=len(fit.setup.wins))
                                                >= MIN_OBJECT_EVENTS))
@@ -145,20 +192,52 @@ def _held_objects(fit: _Fit, sigma: float, p: JointParams, names) -> dict:
     return held
 
 
-def _prior(lay: Layout, p: JointParams, radii: np.ndarray, n_assoc: int) -> np.ndarray:
-    """Per-parameter prior weights (0 = none). With the hand-eye and objects both free, the object corrections
-    get a zero-mean prior of ``p.prior_obj_mm`` / ``p.prior_obj_deg`` worth ``p.prior_weight`` of the associated
-    events: it decides only along directions the events cannot tell apart (a common shift of every object against
-    a hand-eye translation on a trajectory that does not rotate)."""
-    prior = np.zeros(lay.n)
-    if not (p.hand_eye and lay.free[8:].any()):
-        return prior
-    w = p.prior_weight * n_assoc
-    for i, r in enumerate(radii):
-        prior[8 + 6 * i: 11 + 6 * i] = w / p.prior_obj_mm ** 2
-        unit_deg = math.degrees(1e-3 / r)                        # degrees per rotation unit
-        prior[11 + 6 * i: 14 + 6 * i] = w / (p.prior_obj_deg / unit_deg) ** 2
-    return prior * lay.free
+def _prior(lay: Layout, p: JointParams, radii: np.ndarray, n_assoc: int, held_axes=()) -> np.ndarray:
+    """The prior matrix of the parameters (zeros = none).
+
+    With the hand-eye and objects both free, the object corrections get a zero-mean prior of ``p.prior_obj_mm`` /
+    ``p.prior_obj_deg`` worth ``p.prior_weight`` of the associated events: it decides only along directions the
+    events cannot tell apart (a common shift of every object against a hand-eye translation on a trajectory that
+    does not rotate). ``held_axes[i]``: unit rotation axes (base frame) along which object ``i``'s rotation is
+    held at its start (:func:`_symmetry_axes`: the spin of a solid of revolution) by a prior
+    :data:`HOLD_WEIGHT` times the associated events: the events cannot see it, so a step must not move it (the
+    standard errors leave those directions out: :func:`_held_directions`)."""
+    prior = np.zeros((lay.n, lay.n))
+    if p.hand_eye and lay.free[8:].any():
+        w = p.prior_weight * n_assoc
+        for i, r in enumerate(radii):
+            unit_deg = math.degrees(1e-3 / r)                    # degrees per rotation unit
+            d = np.r_[np.full(3, w / p.prior_obj_mm ** 2), np.full(3, w / (p.prior_obj_deg / unit_deg) ** 2)]
+            prior[8 + 6 * i: 14 + 6 * i, 8 + 6 * i: 14 + 6 * i] += np.diag(d)
+    H = _held_directions(lay.n, held_axes)
+    prior += HOLD_WEIGHT * max(n_assoc, 1) * (H @ H.T)
+    free = lay.free.astype(float)
+    return prior * np.outer(free, free)
+
+
+def _held_directions(n: int, held_axes) -> np.ndarray:
+    """``(n, h)``: the held rotation axes of :func:`_symmetry_axes` as unit directions of the parameter vector."""
+    cols = []
+    for i, axes in enumerate(held_axes):
+        for a in axes:
+            v = np.zeros(n)
+            v[11 + 6 * i: 14 + 6 * i] = a
+            cols.append(v)
+    return np.stack(cols, axis=1) if cols else np.zeros((n, 0))
+
+
+def _symmetry_axes(fit: "_Fit", state: JointState) -> list[list[np.ndarray]]:
+    """Per object, the rotation axes (base frame, unit) its silhouettes cannot show at ``state``: the symmetry
+    axis of a solid of revolution, all three for a sphere (:attr:`evpose.core.data.objects.ObjectModel.symmetry`)."""
+    out = []
+    for (kind, axis), T in zip(fit.symmetry, state.T_bo):
+        if kind == "radial":
+            out.append([T[:3, :3] @ axis])
+        elif kind == "spherical":
+            out.append(list(np.eye(3)))
+        else:
+            out.append([])
+    return out
 
 
 def _bounds(fit: _Fit, d, sigma: float, p: JointParams, n: int) -> np.ndarray:
@@ -198,7 +277,7 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
             break
         rows = d.slices(len(fit.state.T_bo))
         J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
-        prior = _prior(lay, p, fit.radii, len(d.s))
+        prior = _prior(lay, p, fit.radii, len(d.s), _symmetry_axes(fit, fit.state))
         delta, f0, f1, move = solve_step(d.s, J, rows, d.outer, sigma, beta, lay, p.step_sigmas * sigma, prior, total,
                                          bounds=_bounds(fit, d, sigma, p, lay.n) if p.step_bounds else None)
         if not f1 > f0:
@@ -227,7 +306,9 @@ def _covariance(fit: _Fit, sigma: float, beta: float, lay: Layout, p: JointParam
         return None
     J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
     rows = d.slices(len(fit.state.T_bo))
-    return sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, _prior(lay, p, fit.radii, len(d.s)))
+    axes = _symmetry_axes(fit, fit.state)
+    return sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, _prior(lay, p, fit.radii, len(d.s)),
+                    held=_held_directions(lay.n, axes), clusters=fit.clusters)
 
 
 def _choose(scene, p: JointParams, clock, names, windows):
@@ -277,6 +358,7 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
         result.runtime_s = time.perf_counter() - t_start
         return result
     fit = _Fit(scene, names, windows, state, params)
+    fit.clusters = window_clusters(scene, windows, clock0)
     fx = float(scene.camera.K[0, 0])
     sigmas = tuple(params.sigmas_px) if params.sigmas_px else tuple(s * fx / 146.0 for s in JOINT_SIGMAS_PX)
     skew_free = params.clock and params.skew in ("fit", "auto")
@@ -303,6 +385,7 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
     cov = _final_covariance(fit, result, params, names, sigma_end, beta, lay, total, totals, clock0, t_start,
                             progress, cancel)
     _finish(scene, fit, result, T_start, clock0, sigma_end, beta, cov, cov_layout(result, params, names), total)
+    check_held_out(scene, result, windows, clock0, dict(zip(names, T_start)), windows[0][1] - windows[0][0])
     result.runtime_s = time.perf_counter() - t_start
     if progress is not None:
         progress(1.0, "done" if result.accepted else result.reason)
@@ -395,4 +478,14 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
         s = sd[8 + 6 * i: 14 + 6 * i]
         result.objects[name] = ObjectFit(
             dT_base=end.T_bo[i] @ inv_T(T_man), dt_mm=moved, dR_deg=ang, std_mm=float(np.sqrt(np.sum(s[:3] ** 2))),
-            std_deg=float(np.sqrt(np.sum(s[3:] ** 2)) * math.degrees(1e-3 / fit.radii[i])))
+            std_deg=float(np.sqrt(np.sum(s[3:] ** 2)) * math.degrees(1e-3 / fit.radii[i])),
+            held_rotation=_held_rotation_text(fit.symmetry[i]))
+
+
+def _held_rotation_text(symmetry) -> str:
+    kind, axis = symmetry
+    if kind == "radial":
+        return f"spin about its symmetry axis (object frame {np.round(axis, 3).tolist()}): the silhouettes cannot show it"
+    if kind == "spherical":
+        return "every rotation (a sphere): the silhouettes cannot show it"
+    return ""

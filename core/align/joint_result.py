@@ -66,10 +66,16 @@ class ObjectFit:
     dR_deg: float
     std_mm: float
     std_deg: float
+    #: A rotation the silhouettes cannot show, held at its start and left out of ``dR_deg`` / ``std_deg`` (e.g.
+    #: "spin about its symmetry axis (object frame [0, 0, 1])"), or "".
+    held_rotation: str = ""
 
     def to_json(self) -> dict:
-        return {"dT_base": np.asarray(self.dT_base).tolist(), "dt_mm": float(self.dt_mm),
-                "dR_deg": float(self.dR_deg), "dt_std_mm": json_number(self.std_mm), "dR_std_deg": json_number(self.std_deg)}
+        d = {"dT_base": np.asarray(self.dT_base).tolist(), "dt_mm": float(self.dt_mm),
+             "dR_deg": float(self.dR_deg), "dt_std_mm": json_number(self.std_mm), "dR_std_deg": json_number(self.std_deg)}
+        if self.held_rotation:
+            d["held_rotation"] = self.held_rotation
+        return d
 
 
 
@@ -106,6 +112,9 @@ class JointResult:
     accepted: bool = False
     reason: str = ""
     trace: list = field(default_factory=list)
+    #: Per fitted object, its alignment score's change on windows the fit did not use
+    #: (:mod:`evpose.core.align.joint_check`): ``windows``, ``score_change`` and its ``score_change_std``.
+    held_out: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         """The result as the CLI prints it: clock at the top, then ``objects`` and ``hand_eye``."""
@@ -121,5 +130,7 @@ class JointResult:
                  "dt_std_mm": json_number(self.hand_eye_std_mm), "dR_std_deg": json_number(self.hand_eye_std_deg)},
              "objective_before": json_number(self.objective_before), "objective_after": json_number(self.objective_after),
              "n_windows": int(self.n_windows), "iterations": int(self.iterations),
-             "runtime_s": float(self.runtime_s), "accepted": bool(self.accepted), "reason": self.reason}
+             "runtime_s": float(self.runtime_s), "accepted": bool(self.accepted), "reason": self.reason,
+             "held_out": {n: {k: json_number(v) if isinstance(v, float) else v for k, v in c.items()}
+                          for n, c in self.held_out.items()}}
         return d

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature"]
+__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix"]
 
 _E05 = math.exp(0.5)
 
@@ -62,6 +62,14 @@ def kernel_curvature(s: np.ndarray, outer: np.ndarray, sigma: float, beta: float
     return (ridge * (1.0 - u * u) + beta * outer * _E05 * (u ** 3 - 3.0 * u)) * g / (sigma * sigma)
 
 
+def prior_matrix(prior: np.ndarray | None, n: int) -> np.ndarray:
+    """The ``n x n`` prior matrix of ``prior``: None (zeros), a vector (its diagonal) or the matrix itself."""
+    if prior is None:
+        return np.zeros((n, n))
+    prior = np.asarray(prior, dtype=np.float64)
+    return np.diag(prior) if prior.ndim == 1 else prior
+
+
 def _normal_eqs(J: np.ndarray, rows: list, weight: np.ndarray, grad_w: np.ndarray, lay: Layout):
     """``A = sum w J J^T`` and ``g = sum grad_w J`` over all events (``rows[i]``: object i's rows), in
     full-vector indices."""
@@ -81,13 +89,14 @@ def solve_step(s0: np.ndarray, J: np.ndarray, rows: list, outer: np.ndarray, sig
                lay: Layout, max_move_px: float, prior: np.ndarray | None = None, theta0: np.ndarray | None = None,
                bounds: np.ndarray | None = None, iters: int = 8) -> tuple[np.ndarray, float, float, float]:
     """The step ``delta`` (full vector, zeros at fixed parameters) maximising ``sum K(s0 + J delta)`` minus the
-    prior ``0.5 * sum prior_j (theta0_j + delta_j)^2`` (``prior`` per parameter, 0 for none), with the RMS of the
+    prior ``0.5 theta^T P theta`` with ``theta = theta0 + delta`` (``prior``: the ``n x n`` matrix ``P``, or its
+    diagonal as a vector; None for none), with the RMS of the
     predicted edge motion ``J delta`` at most ``max_move_px`` and each ``|delta_j|`` at most ``bounds[j]``;
     ``rows[i]`` are object i's rows (the data sorted by object). Returns ``(delta, F(0), F(delta), move)`` with
     ``move`` the RMS of ``J delta`` (px)."""
     free = np.flatnonzero(lay.free)
     n = lay.n
-    prior = np.zeros(n) if prior is None else prior
+    P = prior_matrix(prior, n)
     theta0 = np.zeros(n) if theta0 is None else theta0
 
     def lin(delta):
@@ -99,7 +108,8 @@ def solve_step(s0: np.ndarray, J: np.ndarray, rows: list, outer: np.ndarray, sig
 
     def objective(delta, s):
         k, _, _ = kernel_derivs(s, outer, sigma, beta)
-        return float(k.sum()) - 0.5 * float(np.sum(prior * (theta0 + delta) ** 2))
+        th = theta0 + delta
+        return float(k.sum()) - 0.5 * float(th @ P @ th)
 
     delta = np.zeros(n)
     s = s0
@@ -108,8 +118,8 @@ def solve_step(s0: np.ndarray, J: np.ndarray, rows: list, outer: np.ndarray, sig
     for _ in range(iters):
         _, dk, w = kernel_derivs(s, outer, sigma, beta)
         A, g = _normal_eqs(J, rows, w, dk, lay)
-        A += np.diag(prior)
-        g -= prior * (theta0 + delta)
+        A += P
+        g -= P @ (theta0 + delta)
         Af, gf = A[np.ix_(free, free)], g[free]
         scale = np.sqrt(np.maximum(np.diag(Af), 1e-12))
         improved = False
@@ -158,38 +168,45 @@ def _within_trust_region(delta: np.ndarray, cand: np.ndarray, lin, s0: np.ndarra
 
 
 def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: np.ndarray, sigma: float,
-             beta: float, lay: Layout, prior: np.ndarray | None = None) -> np.ndarray:
+             beta: float, lay: Layout, prior: np.ndarray | None = None, held: np.ndarray | None = None,
+             clusters: np.ndarray | None = None) -> np.ndarray:
     """Cluster-robust covariance of the free parameters at the optimum (full ``n x n`` matrix, NaN rows/columns
     for fixed parameters): ``A^-1 B A^-1`` with ``A`` the objective's curvature and ``B`` the covariance of the
-    windows' score sums scaled to their number (``n_w / (n_w - 1)``). An object whose parameters touch a
-    direction the objective does not curve down along (a pose the events do not pin: mostly out of view, a
-    symmetry) gets infinite standard errors and is left out of the others' covariance; everything is infinite
-    with fewer than 3 windows."""
+    clusters' score sums scaled to their number (``n_c / (n_c - 1)``). Clusters are the windows, or ``clusters``
+    (one id per window index ``win``: e.g. the motion segment each window lies in, since windows of one move share
+    its errors). An object whose parameters touch a direction the objective does not curve down along (a pose the
+    events do not pin: mostly out of view, a symmetry nobody declared) gets infinite standard errors and is left
+    out of the others' covariance; everything is infinite with fewer than 3 clusters.
+
+    ``held``: ``(n, h)`` unit directions of the parameter space held at the start (the spin of a solid of
+    revolution): the covariance is that of the other directions (zero along the held ones), which are judged flat
+    or not on their own."""
     n = lay.n
     _, dk, _ = kernel_derivs(s, outer, sigma, beta)
     A, _ = _normal_eqs(J, rows, kernel_curvature(s, outer, sigma, beta), dk, lay)   # observed curvature
-    if prior is not None:
-        A += np.diag(prior)
-    wins = np.unique(win)
+    A += prior_matrix(prior, n)
+    groups = win if clusters is None else np.asarray(clusters)[win]
+    ids = np.unique(groups)
     cov = np.full((n, n), np.nan)
     free = lay.free.copy()
-    if len(wins) < 3:
+    if len(ids) < 3:
         cov[np.ix_(free, free)] = np.inf
         return cov
-    G = np.zeros((len(wins), n))
+    G = np.zeros((len(ids), n))
     psi = J * dk[:, None]                                  # per-event score contributions
     for i, r in enumerate(rows):
         if r.stop <= r.start:
             continue
         c = lay.cols(i)
-        wr = np.searchsorted(wins, win[r])
+        gr = np.searchsorted(ids, groups[r])
         for j in range(14):
-            G[:, c[j]] += np.bincount(wr, weights=psi[r, j], minlength=len(wins))
+            G[:, c[j]] += np.bincount(gr, weights=psi[r, j], minlength=len(ids))
+    held = np.zeros((n, 0)) if held is None else np.asarray(held, dtype=np.float64).reshape(n, -1)
     for _ in range(lay.n_objects + 2):
         f = np.flatnonzero(free)
         if len(f) == 0:
             break
-        C, flat = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(wins))
+        C, flat = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(ids), _complement(held, f, free))
         if not flat.any():
             cov[np.ix_(f, f)] = C
             break
@@ -208,14 +225,29 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
     return cov
 
 
-def _sandwich_free(A: np.ndarray, G: np.ndarray, n_win: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(A^-1 B A^-1, flat)`` for the free parameters; ``flat`` marks parameters with a non-negligible share in
+def _complement(held: np.ndarray, f: np.ndarray, free: np.ndarray) -> np.ndarray | None:
+    """An orthonormal basis (columns, in the coordinates ``f``) of the directions orthogonal to the held ones
+    that lie within the free parameters; None when nothing is held there."""
+    from scipy.linalg import null_space
+
+    keep = [k for k in range(held.shape[1]) if np.all(free[np.abs(held[:, k]) > 0])]
+    if not keep:
+        return None
+    return null_space(held[np.ix_(f, keep)].T)
+
+
+def _sandwich_free(A: np.ndarray, G: np.ndarray, n_groups: int, Q: np.ndarray | None = None):
+    """``(A^-1 B A^-1, flat)`` for the free parameters, within the subspace spanned by the orthonormal columns of
+    ``Q`` (all of it when None; zero covariance outside); ``flat`` marks parameters with a non-negligible share in
     a direction where ``A`` is not positive (inverted as zero there)."""
+    if Q is None:
+        Q = np.eye(A.shape[0])
+    A, G = Q.T @ A @ Q, G @ Q
     G = G - G.mean(axis=0)
-    B = G.T @ G * (n_win / (n_win - 1.0))
+    B = G.T @ G * (n_groups / (n_groups - 1.0))
     scale = np.sqrt(np.maximum(np.abs(np.diag(A)), 1e-300))
     evals, evecs = np.linalg.eigh(A / np.outer(scale, scale))
     ok = evals > 1e-6 * max(float(evals.max()), 1e-300)
     Ainv = (evecs[:, ok] / evals[ok]) @ evecs[:, ok].T / np.outer(scale, scale)
-    flat = (evecs[:, ~ok] ** 2).sum(axis=1) > 0.05
-    return Ainv @ B @ Ainv, flat
+    share = (Q ** 2) @ (evecs[:, ~ok] ** 2).sum(axis=1)
+    return Q @ (Ainv @ B @ Ainv) @ Q.T, share > 0.05

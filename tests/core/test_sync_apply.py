@@ -51,10 +51,10 @@ def scene_dir(prior_scene, tmp_path) -> Path:
     return dst
 
 
-def estimate(offset_us, skew_ppm) -> SyncResult:
-    """A reliable estimate of the total clock (as sync_scene returns it)."""
+def estimate(offset_us, skew_ppm, offset_std_us=500.0) -> SyncResult:
+    """A reliable estimate of the total clock (as sync_scene returns it), 1 sigma ``offset_std_us``."""
     return SyncResult(offset_us, skew_ppm, 0.9, True, "", np.zeros(0), np.zeros(0),
-                      prior_offset_us=PRIOR_OFFSET_US, prior_skew_ppm=PRIOR_SKEW_PPM)
+                      prior_offset_us=PRIOR_OFFSET_US, prior_skew_ppm=PRIOR_SKEW_PPM, offset_std_us=offset_std_us)
 
 
 # ------------------------------------------------------------------------------------------- core
@@ -88,10 +88,33 @@ def test_apply_sync_makes_the_clock_in_effect_the_estimate(scene_dir):
         assert (scene.clock.offset_us, scene.clock.skew_ppm) == (PRIOR_OFFSET_US, PRIOR_SKEW_PPM)
 
 
+def test_an_estimate_the_clock_in_effect_is_within_is_not_applied(scene_dir):
+    """Issue 23: a right clock is never replaced by a noisier copy of itself: an estimate within 2 sigma of the
+    clock in effect, or one without a standard error, changes nothing; 2 sigma and a little more does."""
+    from evpose.core.align.apply import APPLY_SIGMAS
+
+    with _Open(scene_dir) as scene:
+        h = History(scene.corrections)
+        near = PRIOR_OFFSET_US + int(APPLY_SIGMAS * 500) - 10
+        assert not apply_sync(h, scene, estimate(near, None, offset_std_us=500.0))
+        assert not apply_sync(h, scene, estimate(PRIOR_OFFSET_US - 900, None, offset_std_us=500.0))
+        assert not apply_sync(h, scene, estimate(-73_200, None, offset_std_us=None))
+        assert not apply_sync(h, scene, estimate(-73_200, None, offset_std_us=float("inf")))
+        assert scene.corrections.offset_us == 0 and len(h) == 0
+        assert apply_sync(h, scene, estimate(PRIOR_OFFSET_US + int(APPLY_SIGMAS * 500) + 10, None, 500.0))
+        assert scene.corrections.offset_us == int(APPLY_SIGMAS * 500) + 10
+        # the skew alone, when estimated with its standard error, counts too
+        r = RefineResult("offset", None, offset_us=scene.clock.offset_us, skew_ppm=PRIOR_SKEW_PPM + 30.0,
+                         accepted=True, offset_std_us=300.0, skew_std_ppm=10.0)
+        assert apply_offset_result(h, scene, r)
+        r.skew_std_ppm, r.skew_ppm = 20.0, scene.clock.skew_ppm + 30.0
+        assert not apply_offset_result(h, scene, r)
+
+
 def test_apply_offset_result_makes_the_clock_in_effect_the_refined_one(scene_dir):
     with _Open(scene_dir) as scene:
         h = History(scene.corrections)
-        r = RefineResult("offset", None, offset_us=-70_000, skew_ppm=245.0, accepted=True)
+        r = RefineResult("offset", None, offset_us=-70_000, skew_ppm=245.0, accepted=True, offset_std_us=300.0)
         assert apply_offset_result(h, scene, r)
         assert (scene.corrections.offset_us, scene.corrections.skew_ppm) == (-220_000, pytest.approx(-5.0))
         assert scene.clock.offset_us == -70_000 and scene.clock.skew_ppm == pytest.approx(245.0)
