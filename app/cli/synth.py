@@ -14,16 +14,26 @@ __all__ = ["add_synth_parser", "cmd_synth", "default_demo_dir", "ensure_demo_sce
 
 @command("synth")
 def cmd_synth(args) -> int:
-    from evpose.core.sim.evsim import SensorParams
-    from evpose.core.sim.synth import generate
-    from evpose.core.sim.synth_config import SynthConfig
+    objects = tuple(s.strip() for s in args.objects.split(",") if s.strip())
+    if args.generator == "raycast":
+        from evpose.core.sim_validation.assemble import generate
 
-    cfg = SynthConfig(
-        objects=tuple(s.strip() for s in args.objects.split(",") if s.strip()),
-        mesh_dir=args.mesh_dir, trajectory=args.trajectory, speed_mps=args.speed, duration_s=args.duration,
-        offset_us=args.offset_us, skew_ppm=args.skew_ppm, pose_error_mm=args.pose_error_mm,
-        pose_error_deg=args.pose_error_deg, hand_eye_error_mm=args.hand_eye_error_mm,
-        hand_eye_error_deg=args.hand_eye_error_deg, seed=args.seed, sensor=SensorParams(contrast=args.contrast))
+        cfg = _raycast_config(args, objects)
+    else:
+        from evpose.core.sim.evsim import SensorParams
+        from evpose.core.sim.synth import generate
+        from evpose.core.sim.synth_config import SynthConfig
+
+        for opt in ("clutter", "profile"):
+            if getattr(args, opt) is not None:
+                raise CliError(f"--{opt}: only with --generator raycast")
+        cfg = SynthConfig(
+            objects=objects, mesh_dir=args.mesh_dir, trajectory=args.trajectory, speed_mps=args.speed,
+            duration_s=args.duration, offset_us=args.offset_us, skew_ppm=args.skew_ppm,
+            pose_error_mm=args.pose_error_mm, pose_error_deg=args.pose_error_deg,
+            hand_eye_error_mm=args.hand_eye_error_mm, hand_eye_error_deg=args.hand_eye_error_deg, seed=args.seed,
+            sensor=SensorParams(contrast=0.2 if args.contrast is None else args.contrast),
+            **({} if args.pose_rate_hz is None else {"pose_rate_hz": args.pose_rate_hz}))
     try:
         cfg.validate()
     except ValueError as exc:
@@ -36,6 +46,19 @@ def cmd_synth(args) -> int:
          f"({st['event_rate_hz'] / 1e6:.2f} M ev/s), {st['frames_rendered']} frames rendered in "
          f"{st['runtime_s']:.1f} s")
     return 0
+
+
+def _raycast_config(args, objects):
+    """The validation-family generator's parameters (:mod:`evpose.core.sim_validation`) from the options."""
+    from evpose.core.sim_validation.config import SensorModel, ValidationConfig
+
+    return ValidationConfig(
+        objects=objects, mesh_dir=args.mesh_dir, trajectory=args.trajectory, speed_mps=args.speed,
+        duration_s=args.duration, offset_us=args.offset_us, skew_ppm=args.skew_ppm, pose_error_mm=args.pose_error_mm,
+        pose_error_deg=args.pose_error_deg, hand_eye_error_mm=args.hand_eye_error_mm,
+        hand_eye_error_deg=args.hand_eye_error_deg, seed=args.seed, clutter=args.clutter or 0,
+        profile=args.profile or "mixed", pose_rate_hz=100.0 if args.pose_rate_hz is None else args.pose_rate_hz,
+        sensor=SensorModel(**({} if args.contrast is None else {"contrast": args.contrast})))
 
 
 def default_demo_dir() -> Path:
@@ -78,7 +101,14 @@ def add_synth_parser(subparsers) -> None:
     s.add_argument("--hand-eye-error-mm", type=float, default=0.0,
                    help="camera mounting error written into the trajectory (camera frame), mm")
     s.add_argument("--hand-eye-error-deg", type=float, default=0.0, help="its rotation, degrees")
-    s.add_argument("--contrast", type=float, default=0.2, help="mean contrast threshold (log intensity)")
+    s.add_argument("--contrast", type=float, help="mean contrast threshold, log intensity (default 0.2; raycast 0.25)")
+    s.add_argument("--generator", choices=("raster", "raycast"), default="raster",
+                   help="raster: the default simulator; raycast: the independent validation-family generator "
+                        "(ray-cast lens, solid textures, clutter, level-crossing sensor with leak and shot noise)")
+    s.add_argument("--pose-rate-hz", type=float, help="recorded robot pose rate (default 250; raycast 100)")
+    s.add_argument("--clutter", type=int, help="raycast: distractor objects not in the manifest (default 0)")
+    s.add_argument("--profile", choices=("mixed", "trapezoid", "sine", "sweep"),
+                   help="raycast: the moves' speed profiles (default mixed)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--force", action="store_true", help="replace a scene folder evpose made (removes only the "
                    "files it wrote; refuses when anything else is in it)")
