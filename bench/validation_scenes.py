@@ -29,6 +29,8 @@ sys.path.insert(0, str(BENCH))
 from synth_scenes import DATA  # noqa: E402
 
 FAMILY = BENCH / "validation_family.json"
+#: The calibration family: same generator, other seeds; the only scenes the standard errors' floors are set on.
+CALIBRATION = BENCH / "calibration_family.json"
 #: Keys of a family entry that are not ValidationConfig fields.
 META_KEYS = ("name", "offset_source")
 
@@ -41,11 +43,12 @@ def load_family(path: Path = FAMILY) -> dict:
     return doc
 
 
-def root() -> Path:
+def root(family: Path = FAMILY) -> Path:
     from evpose.core.sim_validation.config import ASSETS
 
     have = (ASSETS / "models").is_dir() and (ASSETS / "camera_davis346.json").is_file()
-    return DATA / "validation" / ("epose" if have else "stand-ins")
+    kind = "validation" if Path(family).resolve() == FAMILY.resolve() else Path(family).stem.replace("_family", "")
+    return DATA / kind / ("epose" if have else "stand-ins")
 
 
 def config(entry: dict):
@@ -66,7 +69,7 @@ def _cached(folder: Path, entry: dict, version: int) -> bool:
     return gen.get("version") == version and all(gen.get(k) == v for k, v in want.items())
 
 
-def ensure_scene(entry: dict, version: int | None = None, quiet: bool = False) -> Path:
+def ensure_scene(entry: dict, version: int | None = None, quiet: bool = False, family: Path = FAMILY) -> Path:
     """The folder of one family scene, generated unless cached (see the module docstring)."""
     from evpose.core.sim_validation.assemble import GENERATOR_VERSION, generate
 
@@ -74,7 +77,7 @@ def ensure_scene(entry: dict, version: int | None = None, quiet: bool = False) -
     if version != GENERATOR_VERSION:
         raise RuntimeError(f"{FAMILY}: generator_version {version}, but the generator is version "
                            f"{GENERATOR_VERSION}: the frozen scenes cannot be remade; make a new family")
-    folder = root() / entry["name"]
+    folder = root(family) / entry["name"]
     if _cached(folder, entry, version):
         return folder
     folder.parent.mkdir(parents=True, exist_ok=True)
@@ -90,19 +93,19 @@ def ensure_scene(entry: dict, version: int | None = None, quiet: bool = False) -
 
 
 def _ensure_one(args) -> str:
-    entry, version = args
-    return str(ensure_scene(entry, version))
+    entry, version, family = args
+    return str(ensure_scene(entry, version, family=family))
 
 
-def ensure_family(names=None, jobs: int = 1) -> dict[str, Path]:
+def ensure_family(names=None, jobs: int = 1, family: Path = FAMILY) -> dict[str, Path]:
     """``name -> folder`` of the family's scenes (all, or those named), generated where not cached,
     ``jobs`` at a time (separate processes)."""
-    doc = load_family()
+    doc = load_family(family)
     entries = [e for e in doc["scenes"] if names is None or e["name"] in set(names)]
     unknown = set(names or ()) - {e["name"] for e in entries}
     if unknown:
         raise KeyError(f"{FAMILY}: no scene named {', '.join(sorted(unknown))}")
-    work = [(e, doc["generator_version"]) for e in entries]
+    work = [(e, doc["generator_version"], family) for e in entries]
     if jobs <= 1:
         folders = [_ensure_one(w) for w in work]
     else:
@@ -142,8 +145,10 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="scenes generated at a time")
     ap.add_argument("--list", action="store_true", help="print the family's table and exit")
     ap.add_argument("--check", action="store_true", help="build worlds and motions only")
+    ap.add_argument("--family", default=str(FAMILY), help="family file (default: the frozen validation family; "
+                    "bench/calibration_family.json: the scenes the standard errors' floors are set on)")
     args = ap.parse_args(argv)
-    doc = load_family()
+    doc = load_family(args.family)
     if args.list:
         print(table(doc))
         return 0
@@ -152,7 +157,7 @@ def main(argv=None) -> int:
             if not args.names or e["name"] in args.names:
                 print(f"{e['name']}: {check(e)}", flush=True)
         return 0
-    for name, folder in ensure_family(args.names or None, args.jobs).items():
+    for name, folder in ensure_family(args.names or None, args.jobs, Path(args.family)).items():
         print(f"{name}\t{folder}")
     return 0
 

@@ -431,9 +431,11 @@ def test_killed_h5_export_resumes_identically(tiny_scene_dir, tmp_path):
     args = ["--format", "h5", "-q", "--window-ms", "5", "--objects", "box"]
     assert_ok(run_cli("export", tiny_scene_dir, "--out", ref, *args))
     resumed = 0
-    for _ in range(2):
+    for attempt in range(6):             # until two kills landed after the first block (a loaded machine is slower)
+        if resumed >= 2:
+            break
         _kill_during(["export", tiny_scene_dir, "--out", out, *args], lambda: (out / ".tiny.h5.partial").exists(),
-                     rng.uniform(0.6, 1.4))
+                     rng.uniform(0.6, 1.4) * (1 + attempt))
         r = run_cli("export", tiny_scene_dir, "--out", out, *args, "--json")
         assert_ok(r)
         resumed += json.loads(r.stdout)["skipped_complete"] > 0
