@@ -78,6 +78,21 @@ def pose_error(T_est: np.ndarray, T_true: np.ndarray) -> tuple[np.ndarray, np.nd
     return dt, rotation_angle(R_rel)
 
 
+def rotation_error_about_symmetry(R_est: np.ndarray, R_true: np.ndarray, axis_obj: np.ndarray | None) -> np.ndarray:
+    """Rotation error (radians) of an object with a continuous radial symmetry: the least rotation between the two
+    poses over every spin about the unit ``axis_obj`` (object frame), which is the angle between the axis as each
+    pose carries it into the parent frame. ``axis_obj=None`` (no symmetry) gives the plain ``angle(R_true^T R_est)``.
+    """
+    R_est = np.asarray(R_est, dtype=np.float64)
+    R_true = np.asarray(R_true, dtype=np.float64)
+    if axis_obj is None:
+        return rotation_angle(np.swapaxes(R_true, -1, -2) @ R_est)
+    a = np.asarray(axis_obj, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    c = np.clip(np.einsum("...i,...i->...", R_est @ a, R_true @ a), -1.0, 1.0)
+    return np.arccos(c)
+
+
 def rotation_residual(R: np.ndarray) -> float:
     """Orthonormality residual ``max|R R^T - I|`` (0 for a rotation)."""
     R = np.asarray(R, dtype=np.float64)

@@ -157,22 +157,32 @@ class ObjectModel:
     def symmetry(self) -> tuple[str | None, np.ndarray | None]:
         """The mesh's continuous symmetry, as trimesh finds it from the principal moments of inertia and a check of
         the surface: ``("radial", axis)`` (a solid of revolution: its spin about the unit ``axis``, object frame,
-        leaves every view unchanged), ``("spherical", None)`` (any rotation about its centre does), or
-        ``(None, None)``. Discrete symmetries (a box's 180 degree turns) are not continuous and do not count:
-        they do not make a pose unobservable, only ambiguous far from the start."""
+        through :attr:`symmetry_centre_m`, leaves every view unchanged), ``("spherical", None)`` (any rotation about
+        its centre does), or ``(None, None)``. Discrete symmetries (a box's 180 degree turns) are not continuous and
+        do not count: they do not make a pose unobservable, only ambiguous far from the start."""
+        return self._symmetry_found[:2]
+
+    @cached_property
+    def symmetry_centre_m(self) -> np.ndarray | None:
+        """A point of the symmetry axis (the centre of mass; object frame, metres), or None without a symmetry."""
+        return self._symmetry_found[2]
+
+    @cached_property
+    def _symmetry_found(self) -> tuple[str | None, np.ndarray | None, np.ndarray | None]:
         import trimesh
 
         try:
             mesh = trimesh.Trimesh(self.vertices_m, self.faces, process=True)
             kind = mesh.symmetry
             axis = None if mesh.symmetry_axis is None else np.asarray(mesh.symmetry_axis, np.float64)
+            centre = np.asarray(mesh.center_mass, np.float64)
         except Exception:                   # noqa: BLE001 -- a degenerate mesh has no measurable symmetry
-            return None, None
+            return None, None, None
         if kind == "radial" and axis is not None and np.linalg.norm(axis) > 0:
-            return "radial", axis / np.linalg.norm(axis)
+            return "radial", axis / np.linalg.norm(axis), centre
         if kind == "spherical":
-            return "spherical", None
-        return None, None
+            return "spherical", None, centre
+        return None, None, None
 
     @cached_property
     def diameter_m(self) -> float:

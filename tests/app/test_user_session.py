@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from evpose.core.data.geometry import inv_T, pose_error
+from evpose.core.data.geometry import inv_T, pose_error, rotation_error_about_symmetry
 from evpose.core.data.scene import Scene
 from evpose.core.document.corrections import Corrections
 from evpose.core.sim.synth import load_ground_truth
@@ -105,9 +105,14 @@ def test_the_whole_verify_task_on_the_demo_scene(qtbot, window, demo_copy, tmp_p
             T = np.eye(4)
             T[:3, :3] = np.asarray(inst["cam_R_m2c"]).reshape(3, 3)
             T[:3, 3] = np.asarray(inst["cam_t_m2c"]) * 1e-3
-            et, er = pose_error(T, T_true[0, truth.object_names.index(k[0])])
+            T_t = T_true[0, truth.object_names.index(k[0])]
+            et, _ = pose_error(T, T_t)
+            # a solid of revolution's spin is invisible to the events and held at its start by the fit (issue 23.6):
+            # its label is right up to that spin, which models_info.json's symmetries_continuous declares
+            kind, axis = truth.raster_model(k[0]).symmetry
+            er = rotation_error_about_symmetry(T[:3, :3], T_t[:3, :3], axis if kind == "radial" else None)
             worst_mm = max(worst_mm, float(np.linalg.norm(et)) * 1e3)
-            worst_deg = max(worst_deg, float(np.degrees(np.linalg.norm(er))))
+            worst_deg = max(worst_deg, float(np.degrees(er)))
     truth.close()
     print(f"\nexported {len(scene_gt)} verified windows: worst label error {worst_mm:.2f} mm, {worst_deg:.2f} deg")
     assert worst_mm <= 1.5 and worst_deg <= 0.5

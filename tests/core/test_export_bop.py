@@ -161,6 +161,12 @@ def test_models_written_in_millimetres(gt_export):
         np.testing.assert_allclose(V.min(0), [e["min_x"], e["min_y"], e["min_z"]], atol=1e-3)
         np.testing.assert_allclose(size, known_mm[n], atol=0.01)
         assert pdist(V).max() == pytest.approx(e["diameter"], abs=1e-3)
+        if n == "cylinder":     # a solid of revolution about its z axis through its centre (the BOP toolkit's form)
+            (sym,) = e["symmetries_continuous"]
+            np.testing.assert_allclose(np.abs(sym["axis"]), [0.0, 0.0, 1.0], atol=1e-6)
+            np.testing.assert_allclose(sym["offset"], (V.max(0) + V.min(0)) / 2, atol=0.5)
+        else:                   # the boxes' symmetries are discrete: none continuous
+            assert "symmetries_continuous" not in e
     assert info["1"]["diameter"] == pytest.approx(np.sqrt(90.0**2 + 60.0**2 + 150.0**2), abs=0.01)
 
 
