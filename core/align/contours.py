@@ -13,10 +13,10 @@ event's own time.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from evpose.core.align.event_windows import EventWindow
 from evpose.core.align.mesh_edges import MeshEdges
+from evpose.core.align.nearest import nearest_within
 from evpose.core.align.refine_result import RefineParams
 from evpose.core.data.geometry import inv_T
 from evpose.core.label.raster import Rasterizer
@@ -181,8 +181,7 @@ class Contours:
             mid = e[len(e) // 2]
             T_cb = win.T_cb[mid]
             xy = project(Pb @ T_cb[:3, :3].T + T_cb[:3, 3], self.K)
-            tree = cKDTree(xy)
-            d, i = tree.query(win.xy[e], distance_upper_bound=band_px)
+            d, i = nearest_within(xy, win.xy[e], band_px)
             ok = np.isfinite(d)
             e, i = e[ok], i[ok]
             # signed distance with the exact per-event pose

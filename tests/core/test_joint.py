@@ -190,7 +190,8 @@ def test_the_spin_of_a_solid_of_revolution_is_held(wrong):
 
 def test_an_object_coinciding_with_another_is_held(wrong, tmp_path):
     """Issue 23: a duplicated object at the same pose (a twin) has no events of its own; it used to be moved
-    21 mm / 12.8 deg with a sigma of 0.28 mm. It is held with the reason, the original is fitted."""
+    21 mm / 12.8 deg with a sigma of 0.28 mm. One of the two is held with the reason; the other is fitted or put
+    back by the held-out check, never moved far."""
     shutil.copytree(wrong, tmp_path / "twin")
     toml = tmp_path / "twin" / "scene.toml"
     box = [b for b in toml.read_text().split("[[objects]]") if 'name = "box"' in b][0]
@@ -200,9 +201,14 @@ def test_an_object_coinciding_with_another_is_held(wrong, tmp_path):
         assert scene.object_names[-1] == "box_twin"
         res = joint_fit.refine_joint(scene, params=JointParams(n_windows=12, clock=False, sigmas_px=(1.5, 0.8)),
                                      clock=ClockModel(gt["clock"]["offset_us"], 0.0, gt["clock"]["t_ref_us"]))
-    held = [n for n in ("box", "box_twin") if n in res.held]
-    assert len(held) == 1 and "coincides with" in res.held[held[0]], res.held
-    assert {"box", "box_twin"} - set(held) <= set(res.objects)
+    twin = [n for n in ("box", "box_twin") if "coincides with" in res.held.get(n, "")]
+    assert len(twin) == 1, res.held                                  # one of the pair held as the twin
+    other = ({"box", "box_twin"} - set(twin)).pop()
+    # the other is fitted, or put back by the held-out check (the held twin still hides part of its silhouette, so
+    # its fit may end worse on the windows it did not use): never held as a twin too, never moved 20 mm
+    assert other in res.objects or "did not use fell" in res.held[other], res.held
+    if other in res.objects:
+        assert res.objects[other].dt_mm < 15.0
 
 
 def test_the_held_out_check_puts_back_an_object_the_fit_made_worse(wrong):
