@@ -308,7 +308,9 @@ def open_client(spec: ClusterSpec, *, log=None):
         n = spec.local_workers()
         dashboard = _has_dashboard()
         with _workers_ignore_sigint(), dask.config.set(WORKER_ENVIRON):
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+            # scheduler, workers and dashboard on the loopback interface only: a local run talks to nothing else
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address="127.0.0.1:0",
                                    memory_limit=spec.memory_limit, silence_logs=logging.CRITICAL)
         client = Client(cluster)
     try:

@@ -323,3 +323,19 @@ def test_local_workers_keep_the_default_malloc_trimming(dask_client):
     start without it (and the nanny does not put it into this process's environment either)."""
     assert set(dask_client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_")).values()) == {None}
     assert os.environ.get("MALLOC_TRIM_THRESHOLD_") is None
+
+
+def test_the_local_cluster_listens_on_the_loopback_interface_only():
+    """A local run's scheduler, workers and dashboard bind 127.0.0.1 (before, the dashboard bound every interface)."""
+    from evpose.core.dataset.cluster import ClusterSpec, open_client
+
+    import psutil
+
+    with open_client(ClusterSpec(workers=1)) as client:
+        info = client.scheduler_info()
+        addresses = [client.scheduler.address] + list(info["workers"])
+        me = psutil.Process()
+        listening = [c.laddr for p in [me] + me.children(recursive=True)
+                     for c in p.net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+    assert all(a.startswith("tcp://127.0.0.1:") for a in addresses), addresses
+    assert listening and all(ip == "127.0.0.1" for ip, _ in listening), listening
