@@ -7,6 +7,8 @@ the signals.
 """
 from __future__ import annotations
 
+from html import escape
+
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
@@ -70,6 +72,10 @@ def _verdict(p) -> tuple[str, str]:
         loose = p.offset_std_us is None or not p.offset_std_us <= SLOW_STD_NOTE_US
         note = " The event rate pins it only loosely: check it on the frame." if loose else ""
         return "warn", f"<b>Event-rate clock only:</b> {p.reason}.{note} Accept applies it as one undo step."
+    if p.kind == "auto" and p.hand_eye_fitted:
+        return "warn", ("<b>The camera mounting looks off:</b> clock, hand-eye and poses fitted together from the "
+                        "event edges (see the note). Flip the preview between before and after on the frame; "
+                        "Accept applies everything, the hand-eye included, as one undo step.")
     what = {"auto": "Clock and poses fitted together from the event edges, started at the event-rate clock.",
             "edges": "Clock and poses fitted together from the event edges, started at the clock in effect.",
             "refine": "Pose fitted to the event edges (clock kept)."}[p.kind]
@@ -212,8 +218,10 @@ class ProposalPanel(QtWidgets.QWidget):
         self.skew_label.setText(_skew_text(p))
         self._fill_table(p)
         held = p.held
-        self.held_label.setText("".join(f"<b>{n}</b> kept: {why}<br>" for n, why in held.items()))
-        self.held_label.setVisible(bool(held))
+        notes = list(p.joint.notes) if p.joint is not None else []     # e.g. the mounting check's finding
+        self.held_label.setText("".join(f"<b>{n}</b> kept: {why}<br>" for n, why in held.items())
+                                + "".join(f"{escape(n)}<br>" for n in notes))
+        self.held_label.setVisible(bool(held or notes))
         status, html = _verdict(p)
         self.verdict.setText(f"<span style='{STATUS_STYLE[status]}'>{html}</span>")
         self.details.setText(_source_text(p))

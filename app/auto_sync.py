@@ -5,7 +5,8 @@ A :class:`Proposal` is the outcome of one estimation job, computed on a snapshot
 
 - **Auto** (:func:`run_auto`): the event-rate stage (:func:`evpose.core.align.estimate.sync_scene`), then, when
   it is reliable, the clock and every object's pose fitted jointly from event edges, started at the rate estimate
-  (:func:`evpose.core.align.sync_run.edge_stage`). The clock proposed is
+  (:func:`evpose.core.align.sync_run.edge_stage`), and again with the hand-eye free (its mounting check: when the
+  camera mounting looks off, the proposal carries that fit, hand-eye included). The clock proposed is
   :func:`evpose.core.align.sync_run.final_estimate`'s (the CLI's ``sync --edges`` answer); the poses are the edge
   stage's. An unreliable rate estimate stops the job after the rate stage, and the proposal says why.
 - **Clock and poses from edges** and **Refine object** (:func:`run_edges`): the same joint fit
@@ -85,8 +86,9 @@ class StagedProgress:
     Within a width (the edge fit reports None per iteration) the bar advances by iterations of that width's
     share; it never moves back. ``report(fraction, message)`` is the job's progress signal."""
 
-    def __init__(self, report, n_levels: int, iterations_per_level: int, with_rate: bool = True):
+    def __init__(self, report, n_levels: int, iterations_per_level: int, with_rate: bool = True, passes: int = 1):
         self.report = report
+        self.passes = max(int(passes), 1)                # edge fits one after the other (sync's mounting check)
         self.rate_share = RATE_SHARE if with_rate else 0.0
         self.n_levels = int(n_levels)
         self.level_share = 1.0 / (n_levels + 1)         # refine_joint reports level / (n_levels + 1)
@@ -111,9 +113,11 @@ class StagedProgress:
             self._level_start, self._steps = float(f), 0
         else:
             self._steps += 1
-        within = min(self._steps, self.iterations) / (self.iterations + 1) * self.level_share
+        within = min(self._steps, self.iterations) / (self.iterations + 1) * self.level_share / self.passes
         edge_f = 1.0 if f is not None and f >= 1.0 else self._level_start + within
-        level = min(int(round(self._level_start / self.level_share)) + 1, self.n_levels)
+        local = self._level_start * self.passes             # which fit, and how far into it
+        in_pass = local - min(int(local), self.passes - 1)
+        level = min(int(round(in_pass / self.level_share)) + 1, self.n_levels)
         stage = "finishing" if edge_f >= 1.0 else f"kernel width {level} of {self.n_levels}"
         self._emit(start + (1.0 - start) * edge_f, f"edges, {stage}: {message}")
 
@@ -125,7 +129,8 @@ def run_auto(scene, n_windows: int = 24, *, progress=None, cancel=None) -> Propo
     from evpose.core.align.sync_run import edge_stage, final_estimate
 
     t0 = time.perf_counter()
-    bar = StagedProgress(progress or (lambda f, m: None), len(JOINT_SIGMAS_PX), JointParams().outer_per_level)
+    bar = StagedProgress(progress or (lambda f, m: None), len(JOINT_SIGMAS_PX), JointParams().outer_per_level,
+                         passes=2)                   # the clock-and-poses fit, then the mounting check
     p = Proposal("auto", "Automatic estimate", "automatic clock and poses (rate, then edges)", clock_in_effect(scene))
     rate = p.rate = sync_scene(scene, progress=bar.rate, cancel=cancel)
     if not rate.reliable or rate.offset_us is None:

@@ -11,9 +11,15 @@ from evpose_testing import TINY_SCENE, half_davis_camera
 
 @pytest.hookimpl(trylast=True)
 def pytest_configure(config):
-    # after pytest-xvfb has set DISPLAY; without any display Qt widgets still run offscreen
+    # after pytest-xvfb has set DISPLAY; without any display Qt widgets still run offscreen. Under pytest-xdist the
+    # controller starts no Xvfb of its own and its workers inherit its environment: a worker with a display drops
+    # the offscreen choice the controller made (else every GL test runs without GL)
     if not os.environ.get("DISPLAY"):
-        os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+        if "QT_QPA_PLATFORM" not in os.environ:
+            os.environ["QT_QPA_PLATFORM"] = "offscreen"
+            os.environ["EVPOSE_TEST_OFFSCREEN"] = "1"
+    elif os.environ.pop("EVPOSE_TEST_OFFSCREEN", None):
+        os.environ.pop("QT_QPA_PLATFORM", None)
     from evpose.app.qt_compat import guard_pyside_refcount_leak
 
     guard_pyside_refcount_leak()

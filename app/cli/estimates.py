@@ -33,8 +33,9 @@ def edges_line(r, label: str = "edges") -> str:
 def joint_lines(r, label: str = "edges") -> list[str]:
     """Lines for a joint refinement (:class:`~evpose.core.align.joint_result.JointResult`): the clock, then each
     object's change and the hand-eye correction, with standard errors."""
+    notes = [f"  note: {n}" for n in getattr(r, "notes", [])]
     if not r.accepted:
-        return [f"{label}: start kept ({r.reason})"]
+        return [f"{label}: start kept ({r.reason})"] + notes
 
     def pm(x, unit, nd):
         return " (not pinned)" if x is None or not math.isfinite(x) else f" ± {x:.{nd}f} {unit}"
@@ -42,8 +43,12 @@ def joint_lines(r, label: str = "edges") -> list[str]:
     lines = []
     p = r.params
     if p.clock:
-        sk = (f"{r.skew_ppm:.2f} ppm (fitted{pm(r.skew_std_ppm, 'ppm', 1)})" if r.skew_estimated
-              else f"{r.skew_ppm:.2f} ppm (kept)")
+        if r.skew_estimated:
+            sk = f"{r.skew_ppm:.2f} ppm (fitted{pm(r.skew_std_ppm, 'ppm', 1)})"
+        elif r.skew_std_ppm is not None and p.skew != "fixed":         # fitted, but the windows did not pin it
+            sk = f"{r.skew_ppm:.2f} ppm (kept: not pinned, the windows allow{pm(r.skew_std_ppm, 'ppm', 1)})"
+        else:
+            sk = f"{r.skew_ppm:.2f} ppm (kept)"
         lines.append(f"{label}: offset {r.offset_us} us{pm(r.offset_std_us, 'us', 0)}, skew {sk}; "
                      f"{r.n_windows} windows, {r.runtime_s:.1f} s (clock and poses fitted together)")
     for name, o in r.objects.items():
@@ -54,4 +59,4 @@ def joint_lines(r, label: str = "edges") -> list[str]:
     if p.hand_eye:
         lines.append(f"  hand-eye: dt {r.hand_eye_dt_mm:.2f} mm{pm(r.hand_eye_std_mm, 'mm', 2)}, dR "
                      f"{r.hand_eye_dR_deg:.3f} deg{pm(r.hand_eye_std_deg, 'deg', 3)}")
-    return lines
+    return lines + notes

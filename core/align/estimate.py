@@ -40,6 +40,8 @@ from evpose.core.align.rate_series import RateSeries, check_cancel
 from evpose.core.align.scene_proxy import scene_motion_proxy
 from evpose.core.align.segments import skew_from_segments
 from evpose.core.align.sync_result import ClockEstimate, SyncResult, unreliable
+from evpose.core.align import uncertainty
+from evpose.core.align.uncertainty import with_floor
 from evpose.core.data.clock import ClockModel
 
 __all__ = ["MIN_DURATION_US", "MIN_MOTION_PX_S", "REFINE_MODES", "estimate_clock", "sync_scene"]
@@ -198,6 +200,8 @@ def sync_scene(scene, *, range_ms: float = 500.0, bin_us: int = 1000, kind: str 
 
     The search is centred on the clock in effect (prior + corrections); the result holds total
     values. Use :func:`evpose.core.align.apply.clock_correction` for the values to store as corrections.
+    ``offset_std_us`` is the rate's own standard error with the model-error floor of
+    :mod:`evpose.core.align.uncertainty` in quadrature (``offset_std_data_us`` without it).
     """
     t_start = time.perf_counter()
     prior = scene.clock
@@ -207,5 +211,7 @@ def sync_scene(scene, *, range_ms: float = 500.0, bin_us: int = 1000, kind: str 
     proxy = scene_motion_proxy(scene, kind=kind)
     res = estimate_clock(starts, counts, bin_us, proxy, prior, range_us=range_ms * 1000.0, progress=progress,
                          cancel=cancel, **kwargs)
+    res.offset_std_data_us = res.offset_std_us          # the honest sigma adds the model-error floor (issue 23.2)
+    res.offset_std_us = with_floor(res.offset_std_us, uncertainty.RATE_OFFSET_FLOOR_US)
     res.runtime_s = time.perf_counter() - t_start
     return res

@@ -41,6 +41,8 @@ from evpose.core.align.joint_result import JOINT_SIGMAS_PX, JointParams, JointRe
 from evpose.core.align.joint_solve import Layout, kernel_derivs, sandwich, solve_step
 from evpose.core.align.pose_refine import _pose_change, delta_T
 from evpose.core.align.scene_proxy import scene_motion_proxy
+from evpose.core.align import uncertainty as U
+from evpose.core.align.uncertainty import with_floor
 from evpose.core.align.clock_refine import offset_window_us
 from evpose.core.data.events import Cancelled
 from evpose.core.data.geometry import inv_T
@@ -50,6 +52,8 @@ __all__ = ["MIN_OBJECT_EVENTS", "MIN_OBJECT_WINDOWS", "SKEW_LEVELS", "SKEW_MAX_S
 #: The fitted skew is kept when its standard error is at most this (ppm) or its change exceeds SKEW_SIGMAS of it.
 SKEW_MAX_STD_PPM = 15.0
 SKEW_SIGMAS = 3.0
+#: A fitted skew beyond this (ppm) is dropped: the rate stage searches no further, and real clocks drift by tens of ppm.
+MAX_SKEW_PPM = 1500.0
 #: An object is fitted only when at least MIN_OBJECT_WINDOWS windows hold MIN_OBJECT_EVENTS events near its
 #: edges at the coarsest width: with fewer, its pose is pinned by a handful of viewpoints (an object mostly out of
 #: view) and the windows' spread says nothing of its uncertainty; it is held at its start and reported.
@@ -418,9 +422,14 @@ def _final_covariance(fit: _Fit, result: JointResult, params: JointParams, names
         result.skew_estimated = params.skew == "fit"
         return cov
     sk = math.sqrt(cov[1, 1]) if np.isfinite(cov[1, 1]) else math.inf
-    if sk <= SKEW_MAX_STD_PPM or abs(total[1]) > SKEW_SIGMAS * sk:
+    plausible = abs(fit.state.skew_ppm) <= MAX_SKEW_PPM
+    if plausible and (sk <= SKEW_MAX_STD_PPM or abs(total[1]) > SKEW_SIGMAS * sk):
         result.skew_estimated = True
         return cov
+    if not plausible:
+        result.skew_implausible = True
+        result.notes.append(f"a fitted skew of {fit.state.skew_ppm:.0f} ppm is beyond the +-{MAX_SKEW_PPM:g} ppm of "
+                            "real clocks (another error, e.g. the camera mounting, pulling the clock): the start's kept")
     fit.state = fit.state.copy()                                 # not pinned: the start's skew, finest width again
     fit.state.skew_ppm = float(clock0.skew_ppm)
     fit.contours = None
@@ -454,18 +463,20 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
     sd = np.sqrt(np.where(np.isfinite(np.diag(cov)), np.diag(cov), np.inf)) if cov is not None else np.full(lay.n, np.inf)
     if lay.free[0] and np.isfinite(sd[0]):
         result.offset_us = int(round(end.offset_us))
-        result.offset_std_us = float(sd[0])
+        result.offset_std_data_us = float(sd[0])
+        result.offset_std_us = with_floor(sd[0], U.JOINT_OFFSET_FLOOR_US)
         result.skew_ppm = float(end.skew_ppm)
         if lay.free[1]:
-            result.skew_std_ppm = float(sd[1])
+            result.skew_std_ppm = with_floor(sd[1], U.JOINT_SKEW_FLOOR_PPM)
     elif lay.free[0]:                                   # the edges do not pin the clock: the start's is kept
         result.offset_std_us = math.inf
         result.skew_estimated = False
     if lay.free[2:8].any():
         result.hand_eye_dT_cam = scene.corrections.hand_eye_delta @ end.H
         result.hand_eye_dR_deg, result.hand_eye_dt_mm = _pose_change(end.H, np.zeros(3))     # deg, mm of the origin
-        result.hand_eye_std_mm = float(np.sqrt(np.sum(sd[2:5] ** 2)))
-        result.hand_eye_std_deg = float(np.sqrt(np.sum(sd[5:8] ** 2)) * math.degrees(1e-3 / HAND_EYE_RADIUS_M))
+        result.hand_eye_std_mm = with_floor(np.sqrt(np.sum(sd[2:5] ** 2)), U.HAND_EYE_FLOOR_MM)
+        result.hand_eye_std_deg = with_floor(np.sqrt(np.sum(sd[5:8] ** 2)) * math.degrees(1e-3 / HAND_EYE_RADIUS_M),
+                                             U.HAND_EYE_FLOOR_DEG)
     for i, name in enumerate(fit.names):
         if not lay.free[8 + 6 * i]:
             continue
@@ -477,8 +488,9 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
         ang, moved = _pose_change(end.T_bo[i] @ inv_T(T_start[i]), c0)      # deg, displacement of the centre mm
         s = sd[8 + 6 * i: 14 + 6 * i]
         result.objects[name] = ObjectFit(
-            dT_base=end.T_bo[i] @ inv_T(T_man), dt_mm=moved, dR_deg=ang, std_mm=float(np.sqrt(np.sum(s[:3] ** 2))),
-            std_deg=float(np.sqrt(np.sum(s[3:] ** 2)) * math.degrees(1e-3 / fit.radii[i])),
+            dT_base=end.T_bo[i] @ inv_T(T_man), dt_mm=moved, dR_deg=ang,
+            std_mm=with_floor(np.sqrt(np.sum(s[:3] ** 2)), U.POSE_FLOOR_MM),
+            std_deg=with_floor(np.sqrt(np.sum(s[3:] ** 2)) * math.degrees(1e-3 / fit.radii[i]), U.POSE_FLOOR_DEG),
             held_rotation=_held_rotation_text(fit.symmetry[i]))
 
 

@@ -96,7 +96,12 @@ class JointResult:
     skew_ppm: float
     offset_std_us: float | None = None
     skew_std_ppm: float | None = None
+    #: The offset's standard error from the windows' spread alone, before the model-error floor of
+    #: :mod:`evpose.core.align.uncertainty` (large when the windows disagree: a clock cannot explain them).
+    offset_std_data_us: float | None = None
     skew_estimated: bool = False
+    #: The fit found a skew beyond :data:`~evpose.core.align.joint_fit.MAX_SKEW_PPM` and dropped it (a note says so).
+    skew_implausible: bool = False
     objects: dict = field(default_factory=dict)
     held: dict = field(default_factory=dict)
     hand_eye_dT_cam: np.ndarray | None = None
@@ -112,6 +117,8 @@ class JointResult:
     accepted: bool = False
     reason: str = ""
     trace: list = field(default_factory=list)
+    #: What the fit decided on its own that the user should know (one sentence each).
+    notes: list = field(default_factory=list)
     #: Per fitted object, its alignment score's change on windows the fit did not use
     #: (:mod:`evpose.core.align.joint_check`): ``windows``, ``score_change`` and its ``score_change_std``.
     held_out: dict = field(default_factory=dict)
@@ -121,6 +128,7 @@ class JointResult:
         p = self.params
         d = {"offset_us": int(self.offset_us), "skew_ppm": float(self.skew_ppm),
              "offset_std_us": json_number(self.offset_std_us), "skew_std_ppm": json_number(self.skew_std_ppm),
+             "offset_std_data_us": json_number(self.offset_std_data_us),
              "skew_estimated": bool(self.skew_estimated), "clock_fitted": bool(p.clock),
              "objects": {n: o.to_json() for n, o in self.objects.items()},
              "held": dict(self.held),
@@ -131,6 +139,7 @@ class JointResult:
              "objective_before": json_number(self.objective_before), "objective_after": json_number(self.objective_after),
              "n_windows": int(self.n_windows), "iterations": int(self.iterations),
              "runtime_s": float(self.runtime_s), "accepted": bool(self.accepted), "reason": self.reason,
+             "notes": list(self.notes),
              "held_out": {n: {k: json_number(v) if isinstance(v, float) else v for k, v in c.items()}
                           for n, c in self.held_out.items()}}
         return d

@@ -86,6 +86,9 @@ class SyncResult:
     t_ref_us: int = 0
     notes: list = field(default_factory=list)
     offset_std_us: float | None = None
+    #: ``offset_std_us`` before the model-error floor (:data:`~evpose.core.align.uncertainty.RATE_OFFSET_FLOOR_US`)
+    #: that :func:`~evpose.core.align.estimate.sync_scene` adds: what the rate's Poisson noise alone allows.
+    offset_std_data_us: float | None = None
 
     def clock(self) -> ClockModel | None:
         """The estimated clock model (prior skew kept when skew was not estimated)."""
@@ -102,6 +105,7 @@ class SyncResult:
              "peak_hwhm_us": num(self.peak_hwhm_us), "prior_offset_us": int(self.prior_offset_us),
              "prior_skew_ppm": float(self.prior_skew_ppm), "t_ref_us": int(self.t_ref_us),
              "offset_std_us": None if self.offset_std_us is None else num(self.offset_std_us),
+             "offset_std_data_us": None if self.offset_std_data_us is None else num(self.offset_std_data_us),
              "offset_pinned": None if self.offset_std_us is None else bool(math.isfinite(self.offset_std_us)),
              "segments": [s.to_json() for s in self.segments], "notes": list(self.notes)}
         if curve:

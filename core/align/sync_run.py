@@ -11,13 +11,15 @@ under ``stages``: ``stages.rate`` (:meth:`~evpose.core.align.sync_result.SyncRes
 jointly with the object poses, which are reported there but not applied by ``sync``)."""
 from __future__ import annotations
 
+import math
 import sys
 from dataclasses import dataclass, field
 
 from evpose.core.align.apply import apply_joint_result, apply_sync, save_applied
 from evpose.core.document.estimates import clock_correction_for
 
-__all__ = ["EDGE_MIN_RANGE_US", "SyncOptions", "SyncRun", "edge_stage", "final_estimate", "run_sync"]
+__all__ = ["EDGE_MIN_RANGE_US", "MOUNTING_MIN_OBJECTS", "MOUNTING_SIGMAS", "MOUNTING_TRIGGER_STD_US", "SyncOptions",
+           "SyncRun", "edge_stage", "final_estimate", "mounting_check", "mounting_suspected", "run_sync"]
 
 
 @dataclass(frozen=True)
@@ -95,23 +97,109 @@ def run_sync(scene, opts: SyncOptions, *, progress=None, edge_progress=None, can
 EDGE_MIN_RANGE_US = 5000.0
 
 
-def edge_stage(scene, rate, n_windows: int, *, progress=None, cancel=None):
+#: A mounting error is concluded only when at least this many objects were fitted with it: it moves every object's
+#: edges in one camera-frame pattern, while one object's own pose error moves its edges much as a hand-eye error does
+#: (on a 1-object calibration scene the hand-eye fit took a 6 mm object error for a mounting error).
+MOUNTING_MIN_OBJECTS = 2
+#: The mounting check runs when the clock-and-poses fit was refused, dropped an implausible skew, or its windows
+#: disagree on the clock by more than this (its data-only standard error, µs): well-aligned scenes at 0.5-1 m/s give
+#: 20-50 µs, a 3 mm / 0.8 deg mounting error ~300 µs (slow scenes, texture and clutter also raise it: those pay the
+#: second fit, which then decides).
+MOUNTING_TRIGGER_STD_US = 120.0
+#: The hand-eye the mounting check finds counts as a camera-mounting error when its translation or rotation exceeds
+#: this many of its standard errors (each is the root sum of three axes' variances, so 3 is far in the tail: under no
+#: error ``|d|^2 / std^2`` is about chi-square(3) / 3, beyond 9 with probability ~6e-6).
+MOUNTING_SIGMAS = 3.0
+
+
+def edge_stage(scene, rate, n_windows: int, *, progress=None, cancel=None, mounting: bool = True):
     """The joint edge fit (clock and every object's pose, :func:`~evpose.core.align.joint_fit.refine_joint`)
     started at the rate estimate ``rate``; not accepted (``reason`` says why) when its clock moves further from the
     rate estimate than :func:`~evpose.core.align.sync_edges.sync_edge_half_range_us` or :data:`EDGE_MIN_RANGE_US`,
-    whichever is larger (a far-off local optimum)."""
+    whichever is larger (a far-off local optimum).
+
+    With ``mounting``, when :func:`mounting_suspected`, the fit runs a second time with the hand-eye free
+    (:func:`mounting_check`): a camera-mounting error moves the projected edges with the camera's *pose*, a clock
+    error with its *velocity*; a clock-and-poses fit can absorb the first only into the clock (and skew), so a right
+    clock would be made wrong. When the freed hand-eye is beyond :data:`MOUNTING_SIGMAS` of its standard errors and
+    that fit is accepted, its result (clock, hand-eye and poses) is returned, with a note that says so; otherwise
+    the first fit's."""
     from evpose.core.align.joint_fit import refine_joint
     from evpose.core.align.joint_result import JointParams
+
+    halves = _halves(progress) if mounting else (progress, None)
+    res = refine_joint(scene, params=JointParams(n_windows=n_windows), clock=rate.clock(), progress=halves[0],
+                       cancel=cancel)
+    _check_range(res, rate)
+    if not (mounting and mounting_suspected(res)):
+        if progress is not None and mounting:
+            progress(1.0, "done (no sign of a camera-mounting error)")
+        return res
+    alt = refine_joint(scene, params=JointParams(n_windows=n_windows, hand_eye=True), clock=rate.clock(),
+                       progress=halves[1], cancel=cancel)
+    _check_range(alt, rate)
+    return mounting_check(res, alt)
+
+
+def mounting_suspected(res) -> bool:
+    """Whether a clock-and-poses fit ``res`` shows what a camera-mounting error does to it: refused, an implausible
+    skew dropped, or windows that disagree on the clock (:data:`MOUNTING_TRIGGER_STD_US`)."""
+    if not res.accepted or res.skew_implausible:
+        return True
+    std = res.offset_std_data_us
+    return std is not None and (not math.isfinite(std) or std > MOUNTING_TRIGGER_STD_US)
+
+
+def mounting_check(res, alt):
+    """Of a clock-and-poses fit ``res`` and the same fit with the hand-eye free ``alt``, the one to believe: ``alt``
+    when it was accepted and its hand-eye change is beyond :data:`MOUNTING_SIGMAS` of its standard errors (a note on
+    it says by how much the mounting looks off, and what the first fit made of it), else ``res`` (with a note when
+    ``alt`` saw no mounting error)."""
+    def ratio(change, std):
+        return change / std if std and math.isfinite(std) and std > 0 else 0.0
+
+    z = max(ratio(alt.hand_eye_dt_mm, alt.hand_eye_std_mm), ratio(alt.hand_eye_dR_deg, alt.hand_eye_std_deg))
+    seen = (f"{alt.hand_eye_dt_mm:.2f} +- {alt.hand_eye_std_mm or float('nan'):.2f} mm, "
+            f"{alt.hand_eye_dR_deg:.3f} +- {alt.hand_eye_std_deg or float('nan'):.3f} deg")
+    if alt.accepted and z > MOUNTING_SIGMAS and len(alt.objects) < MOUNTING_MIN_OBJECTS:
+        res.notes.append(f"mounting check: a hand-eye change of {seen} would explain the events, but with "
+                         f"{len(alt.objects)} object fitted a camera-mounting error and that object's pose error move "
+                         "its edges alike; nothing concluded (the mounting shows on two or more objects)")
+        return res
+    if alt.accepted and z > MOUNTING_SIGMAS:
+        first = (f"clock {res.offset_us / 1000:+.3f} ms" + (f", skew {res.skew_ppm:+.0f} ppm" if res.skew_estimated
+                                                             else "")) if res.accepted else f"refused: {res.reason}"
+        alt.notes.insert(0, f"the camera mounting (hand-eye) looks off by {seen} ({z:.1f} sigma): clock, hand-eye "
+                            f"and poses were fitted together (without the hand-eye the fit gave {first}); "
+                            "store the hand-eye with Accept in the app or `evpose refine --joint --hand-eye --apply`")
+        return alt
+    res.notes.append(f"mounting check: no camera-mounting error seen (hand-eye {seen}, {z:.1f} sigma)"
+                     if alt.accepted else f"mounting check: the fit with the hand-eye free was refused ({alt.reason})")
+    return res
+
+
+def _check_range(res, rate) -> None:
     from evpose.core.align.sync_edges import sync_edge_half_range_us
 
-    res = refine_joint(scene, params=JointParams(n_windows=n_windows), clock=rate.clock(), progress=progress,
-                       cancel=cancel)
     half = max(sync_edge_half_range_us(rate), EDGE_MIN_RANGE_US)
     if res.accepted and abs(res.offset_us - rate.offset_us) > half:
         res.accepted = False
         res.reason = (f"the edges moved the clock {(res.offset_us - rate.offset_us) / 1000:+.1f} ms from the rate "
                       f"estimate, beyond its search range of ± {half / 1000:.1f} ms; rate estimate kept")
-    return res
+
+
+def _halves(progress):
+    """Two progress callbacks ``(fraction, message)`` for two fits one after the other, on ``progress``'s 0..1."""
+    if progress is None:
+        return None, None
+
+    def first(f, message=""):
+        progress(None if f is None else 0.5 * float(f), message)
+
+    def second(f, message=""):
+        progress(None if f is None else 0.5 + 0.5 * float(f), f"mounting check: {message}")
+
+    return first, second
 
 
 def final_estimate(rate, edges) -> dict:

@@ -105,7 +105,7 @@ def _overview(doc: dict, ids: dict) -> str:
     plots = ""
     if ok:
         plots = (f'<div class="plots"><figure><figcaption>Clock estimate − clock in effect (● ±1 σ, thin: '
-                 f'±{t["clock_k_sigma"]:g} σ incl. {t["clock_model_error_us"] / 1000:g} ms model error; red: flagged, '
+                 f'±{t["clock_k_sigma"]:g} σ, σ including the model-error floor; red: flagged, '
                  f'hollow: σ loose)</figcaption>'
                  f'{svg_plots.clock_plot(clock_rows, k_sigma=t["clock_k_sigma"])}</figure>'
                  f'<figure><figcaption>Windows without a label (<span class="key holes"></span> trajectory holes, '
@@ -235,8 +235,8 @@ def _objects(r: dict, t: dict) -> tuple[str, str]:
 
 def _footer(doc: dict) -> str:
     t = doc["thresholds"]
-    items = [f"clock flagged beyond {t['clock_k_sigma']:g} σ (σ widened by {t['clock_model_error_us'] / 1000:g} ms "
-             f"model error) or when σ > {t['clock_loose_std_us'] / 1000:g} ms",
+    items = [f"clock flagged beyond {t['clock_k_sigma']:g} σ (the estimate's own σ, model-error floor included) "
+             f"or when σ > {t['clock_loose_std_us'] / 1000:g} ms",
              f"skew drift over a scene > {t['max_skew_drift_us'] / 1000:g} ms",
              f"unlabeled windows > {_pct(t['max_unlabeled_share'])}",
              f"median alignment score < {t['min_median_score']:g}",

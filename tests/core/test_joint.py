@@ -329,3 +329,65 @@ def test_sync_edges_json_puts_the_final_estimate_on_top(wrong, tmp_path):
         assert scene.corrections.object_deltas == {}                  # sync stores the clock only
     rc, text = _cli(["sync", str(folder), "--edges", "--windows", "8", "-q"])
     assert rc == 0 and "clock and poses fitted together" in text
+
+
+def test_a_mounting_error_is_not_turned_into_a_clock_error(mounted):
+    """Issue 23.5: with a right clock and a 2 mm / 0.5 deg camera-mounting error, the clock-and-poses fit can only
+    absorb the mounting into the clock (it moved it 9 ms and was refused); the sync edge stage's mounting check fits
+    again with the hand-eye free, says so, proposes the hand-eye, and keeps the clock right within its sigma."""
+    from evpose.core.align import sync_run
+    from evpose.core.align.estimate import sync_scene
+
+    gt = load_ground_truth(mounted)
+    with Scene.open(mounted) as scene:
+        rate = sync_scene(scene)
+        res = sync_run.edge_stage(scene, rate, 16)
+    assert res.accepted and res.params.hand_eye, (res.reason, res.notes)
+    assert "camera mounting (hand-eye) looks off" in res.notes[0]
+    err_us = res.offset_us - gt["clock"]["offset_us"]
+    assert abs(err_us) <= 2 * res.offset_std_us, (err_us, res.offset_std_us)
+    # the printed sigma is the data's with the model-error floor in quadrature (issue 23.2)
+    from evpose.core.align import uncertainty as U
+
+    assert res.offset_std_us == pytest.approx(np.hypot(res.offset_std_data_us, U.JOINT_OFFSET_FLOOR_US))
+    assert res.hand_eye_std_mm >= U.HAND_EYE_FLOOR_MM and res.hand_eye_std_deg >= U.HAND_EYE_FLOOR_DEG
+    et, er = pose_error(res.hand_eye_dT_cam, np.asarray(gt["hand_eye"]["dT_cam"]))
+    assert np.linalg.norm(et) * 1e3 <= 2 * res.hand_eye_std_mm and np.degrees(er) <= 2 * res.hand_eye_std_deg
+    assert np.linalg.norm(et) * 1e3 < 1.0 and np.degrees(er) < 0.15
+
+
+def _fake_result(accepted=True, he=False, dt_mm=0.0, std_mm=0.2, dR_deg=0.0, std_deg=0.05, data_us=30.0, n_obj=3):
+    from evpose.core.align.joint_result import JointResult, ObjectFit
+
+    r = JointResult(JointParams(hand_eye=he), offset_us=0, skew_ppm=0.0, offset_std_us=50.0, accepted=accepted,
+                    offset_std_data_us=data_us, reason="" if accepted else "refused")
+    r.objects = {f"o{i}": ObjectFit(np.eye(4), 0.1, 0.1, 0.1, 0.1) for i in range(n_obj)}
+    if he:
+        r.hand_eye_dT_cam, r.hand_eye_dt_mm, r.hand_eye_std_mm = np.eye(4), dt_mm, std_mm
+        r.hand_eye_dR_deg, r.hand_eye_std_deg = dR_deg, std_deg
+    return r
+
+
+def test_mounting_check_takes_the_hand_eye_fit_only_when_significant():
+    """The decision of the mounting check, on made-up fits: when it runs, and which fit it believes."""
+    from evpose.core.align import sync_run
+
+    assert not sync_run.mounting_suspected(_fake_result())                      # windows agree: no second fit
+    assert sync_run.mounting_suspected(_fake_result(data_us=sync_run.MOUNTING_TRIGGER_STD_US * 1.5))
+    assert sync_run.mounting_suspected(_fake_result(accepted=False))
+    implausible = _fake_result()
+    implausible.skew_implausible = True
+    assert sync_run.mounting_suspected(implausible)
+    k = sync_run.MOUNTING_SIGMAS
+    first = _fake_result()
+    alt = _fake_result(he=True, dt_mm=(k + 0.5) * 0.2)                          # beyond k sigma: believed
+    assert sync_run.mounting_check(first, alt) is alt and "looks off" in alt.notes[0]
+    first, alt = _fake_result(), _fake_result(he=True, dt_mm=(k - 0.5) * 0.2, dR_deg=(k - 0.5) * 0.05)
+    assert sync_run.mounting_check(first, alt) is first and "no camera-mounting error" in first.notes[-1]
+    first, alt = _fake_result(), _fake_result(he=True, dR_deg=(k + 1) * 0.05)    # the rotation alone suffices
+    assert sync_run.mounting_check(first, alt) is alt
+    first, alt = _fake_result(), _fake_result(accepted=False, he=True, dt_mm=10.0)
+    assert sync_run.mounting_check(first, alt) is first and "refused" in first.notes[-1]
+    # one object: its own pose error and a mounting error look alike, nothing is concluded
+    first, alt = _fake_result(n_obj=1), _fake_result(he=True, dt_mm=10.0, n_obj=sync_run.MOUNTING_MIN_OBJECTS - 1)
+    assert sync_run.mounting_check(first, alt) is first and "nothing concluded" in first.notes[-1]

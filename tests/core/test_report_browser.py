@@ -85,7 +85,7 @@ class DomSummary(HTMLParser):
 def report_doc(clean: dict) -> dict:
     """A report document with a clean scene, a shifted clock, a degraded object, a failed scene and a
     scene whose name is markup."""
-    b = batch({"seq_clean": clean, "seq_clock": shift_prior(clean, 12_000),
+    b = batch({"seq_clean": clean, "seq_clock": shift_prior(clean, 30_000),    # ~6 sigma of the rate (issue 23.2)
                "seq_object": degrade(clean, "cylinder", 0.3, worst=33), WEIRD: copy.deepcopy(clean)},
               failed={"seq_broken": "seq_broken/events.h5: not an HDF5 file (<truncated>)"})
     return triage(b, order=["seq_clean", "seq_clock", "seq_object", "seq_broken", WEIRD])
