@@ -16,6 +16,7 @@ import pyqtgraph as pg
 import shiboken6
 from PySide6 import QtCore, QtWidgets
 
+from evpose.core.session.kymograph_confidence import REASONS
 from evpose.core.signals import Change
 from evpose.widgets.binding import connect_view
 from evpose.widgets.kymograph_line import FramePreview
@@ -23,17 +24,18 @@ from evpose.widgets.labels import Readout
 from evpose.widgets.plot_data import segments_xy
 
 SPAN_RANGE_MS = (20, 2_000)
-#: Clear lags are printed with one decimal; the ambiguity note when the peak does not stand out.
-AMBIGUOUS_NOTE = " (ambiguous: another lag fits nearly as well)"
+#: The readout's widest line (its size hint): of a reading's second line and the reasons a reading is too weak.
+READOUT_TEMPLATE = max(("\u2192 clock offset +000.0 ms aligns them", *REASONS), key=len)
 
 
-def lag_text(lag_ms: float | None, clear: bool = True) -> str:
-    """The readout: how much later the events happen than the tracks, and the clock offset change that aligns
-    them (the negative of the lag, see :mod:`evpose.core.session.kymograph_lag`)."""
-    if lag_ms is None:
-        return "events vs track: not measurable here (an edge must move along the line, with events near it)"
-    text = f"events vs track: {lag_ms:+.1f} ms \u2192 clock offset {-lag_ms:+.1f} ms aligns them"
-    return text if clear else text + AMBIGUOUS_NOTE
+def lag_text(lag) -> str:
+    """The readout of a :class:`~evpose.core.session.kymograph_lag.LagEstimate`, two lines: how much later the
+    events happen than the tracks ± 1σ, and the clock offset change that aligns them (the negative of the lag,
+    see :mod:`evpose.core.session.kymograph_lag`); or that the reading is too weak, and why."""
+    if lag.lag_ms is None:
+        return "events vs track: too weak to read\n" + (lag.weak or "nothing measured")
+    return (f"events vs track: {lag.lag_ms:+.1f} \u00b1 {lag.sigma_ms:.1f} ms\n"
+            f"\u2192 clock offset {-lag.lag_ms:+.1f} ms aligns them")
 
 
 class KymographView(QtWidgets.QWidget):
@@ -63,7 +65,7 @@ class KymographView(QtWidgets.QWidget):
         self.preview = FramePreview(self._on_line)
         self.plot = pg.PlotWidget(enableMenu=False)
         self._build_plot()
-        self.readout = Readout("events vs track: +00.0 ms \u2192 clock offset +00.0 ms aligns them", stretch=True)
+        self.readout = Readout(READOUT_TEMPLATE, stretch=True, lines=2)
         font = self.readout.font()
         font.setBold(True)
         self.readout.setFont(font)
@@ -75,7 +77,8 @@ class KymographView(QtWidgets.QWidget):
                              "edges run along the event streaks; an offset shifts them in time, a skew makes the "
                              "shift drift.")
         self.auto_button = QtWidgets.QPushButton("Default line")
-        self.auto_button.setToolTip("A line across the selected (or fastest-moving) object, along its motion")
+        self.auto_button.setToolTip("A line across an object along its motion (the selected object's first) whose "
+                                    "edges tell the most about the lag")
         self.auto_button.clicked.connect(self.reset_line)
         self.span_spin = QtWidgets.QSpinBox()
         self.span_spin.setRange(*SPAN_RANGE_MS)
@@ -129,8 +132,13 @@ class KymographView(QtWidgets.QWidget):
 
     @property
     def shift_ms(self) -> float | None:
-        """The shown kymograph's lag of the events behind the tracks, ms (None: none shown, or not measurable)."""
+        """The shown kymograph's lag of the events behind the tracks, ms (None: none shown, or too weak to read)."""
         return None if self.data is None else self.data.lag_ms
+
+    @property
+    def shift_sigma_ms(self) -> float | None:
+        """Its 1σ, ms (None with it)."""
+        return None if self.shift_ms is None else self.data.lag.sigma_ms
 
     def set_line(self, line) -> None:
         """Use ``(u0, v0, u1, v1)`` (px) as the user's line and emit ``lineChanged``."""
@@ -166,7 +174,7 @@ class KymographView(QtWidgets.QWidget):
         else:
             self.image_item.clear()
         self._draw_tracks(data)
-        self.readout.setText(lag_text(data.lag_ms, data.lag.clear))
+        self.readout.setText(lag_text(data.lag))
         self.readout.setToolTip(self._tooltip(data))
 
     def shutdown(self) -> None:
@@ -208,9 +216,12 @@ class KymographView(QtWidgets.QWidget):
 
     @staticmethod
     def _tooltip(data) -> str:
-        rows = [f"{tr.name}: " + (f"{tr.lag.lag_ms:+.1f} ms" if tr.lag.lag_ms is not None else "not measurable")
-                + ("" if tr.lag.clear or tr.lag.lag_ms is None else " (ambiguous)") for tr in data.tracks]
+        rows = [f"{tr.name}: " + (f"{tr.lag.lag_ms:+.1f} \u00b1 {tr.lag.sigma_ms:.1f} ms" if tr.lag.readable
+                                  else f"too weak ({tr.lag.weak})") for tr in data.tracks]
         rows.append(f"{data.n_events:,} events within 1 px of the line; dashed: each track moved by its lag")
+        if data.lines_tried:
+            rows.append(f"default line: of {data.lines_tried} lines across the objects, the first that reads, by "
+                        "how fast their edges move where their events are")
         return "\n".join(rows)
 
     def _on_line(self, line, final: bool) -> None:

@@ -7,7 +7,9 @@ app computes it on a worker thread with :meth:`KymographComputer.stages` (checkp
 Tracks come from the label maps (one z-buffered render per track time, the poses and clock in effect) sampled
 along the line; the maps are cached by time and poses (byte-bounded), so moving the line, or a step in time,
 renders only what is new. The readout (:mod:`~evpose.core.session.kymograph_lag`) is the lag of the event
-streaks behind the tracks, per object and combined.
+streaks behind the tracks, per object and combined, with its 1σ or the reason it is too weak to read
+(:mod:`~evpose.core.session.kymograph_confidence`); the default line is the first of the lines across the shown
+objects, by evidence, that reads (:mod:`~evpose.core.session.kymograph_pick`).
 """
 from __future__ import annotations
 
@@ -22,29 +24,25 @@ from evpose.core.label.annotate import Annotator
 from evpose.core.label.overlay import mask_contours, object_color
 from evpose.core.label.windows import Window
 from evpose.core.session.frames import FrameRequest, run_stages
-from evpose.core.session.kymograph_lag import (
-    MAX_LAG_MS,
-    LagEstimate,
-    combine,
-    contrast_density,
-    estimate_lag,
-    signed_edge_distance,
+from evpose.core.session.kymograph_confidence import NO_TRACK
+from evpose.core.session.kymograph_lag import MAX_LAG_MS, LagEstimate
+from evpose.core.session.kymograph_line import KymoLine
+from evpose.core.session.kymograph_pick import pick_default_line
+from evpose.core.session.kymograph_read import (  # noqa: F401  (bin_events, link_segments: part of this API)
+    BIN_US,
+    EdgeTrack,
+    LineReading,
+    SpanData,
+    bin_events,
+    link_segments,
+    read_line,
 )
-from evpose.core.session.kymograph_line import KymoLine, default_line, edge_crossings, labels_along
 from evpose.core.session.spacetime_slices import SLICE_REQUEST, slice_key, slice_times
 
-#: Events within this distance across the line (px) are binned.
-HALF_WIDTH_PX = 1.0
-#: Time bins of the image, µs.
-BIN_US = 1_000
 #: Edge tracks are sampled at this many times over the span (a step of 4 ms over the default 200 ms).
 TRACK_SAMPLES = 50
-#: Crossings at consecutive track times closer than this (px) are joined into one track line.
-LINK_PX = 8.0
 #: The label maps kept for the tracks (int8, one per track time and pose set): at most this many bytes.
 LABEL_CACHE_BYTES = 48 << 20
-#: The default line is placed from the silhouettes this far before and after the current time (µs).
-MOTION_PROBE_US = 10_000
 #: Event colours of the image (RGB): dark, so the objects' coloured tracks stand out; ON warm, OFF cool.
 ON_RGB, OFF_RGB = (150, 40, 40), (40, 60, 150)
 #: Events per bin at which a bin's colour saturates.
@@ -66,22 +64,6 @@ class KymographRequest:
 
 
 @dataclass
-class EdgeTrack:
-    """One object's silhouette crossings with the line over the span.
-
-    ``t_ms`` / ``s_px`` (P,): the crossing points (time relative to the current time, position along the line);
-    ``segments`` (Q, 2, 2): crossings at consecutive track times joined, as ``[(s, t), (s, t)]`` pairs;
-    ``lag``: the events' lag behind this track."""
-
-    name: str
-    color: tuple[int, int, int]
-    t_ms: np.ndarray
-    s_px: np.ndarray
-    segments: np.ndarray
-    lag: LagEstimate
-
-
-@dataclass
 class KymographData:
     """Display-ready kymograph: rows are time bins (``t_first_ms + i * bin_ms``, relative to ``t_center_us``),
     columns positions along the line (column ``c`` at ``s = c`` px)."""
@@ -96,8 +78,10 @@ class KymographData:
     counts_off: np.ndarray        # (n_t, n_s) uint16
     image_rgb: np.ndarray         # (n_t, n_s, 3) uint8
     tracks: list[EdgeTrack] = field(default_factory=list)
-    lag: LagEstimate = field(default_factory=lambda: LagEstimate(None))
+    lag: LagEstimate = field(default_factory=lambda: LagEstimate(None, weak=NO_TRACK, judged=True))
     n_events: int = 0
+    #: the default line: how many candidate lines were read to pick it (0: the user's line)
+    lines_tried: int = 0
     compute_ms: float = 0.0
     #: the current window's event image (H, W, 3) uint8 and the silhouettes' contours at the current time
     #: ``[(name, rgb, [polyline (M, 2)])]``: where the user draws the line
@@ -106,7 +90,7 @@ class KymographData:
 
     @property
     def lag_ms(self) -> float | None:
-        """The combined lag of the events behind the tracks (ms; None: not measurable here)."""
+        """The combined lag of the events behind the tracks (ms; None: too weak to read, see ``lag.weak``)."""
         return self.lag.lag_ms
 
 
@@ -147,27 +131,6 @@ class LabelMapCache:
         return lm
 
 
-def bin_events(ev, line: KymoLine, t_first_us: int, n_rows: int, bin_us: int,
-               half_width_px: float = HALF_WIDTH_PX) -> tuple[np.ndarray, np.ndarray]:
-    """ON and OFF counts ``(n_rows, n_cols)`` uint16 of the events within ``half_width_px`` of ``line``: rows are
-    ``bin_us`` time bins from ``t_first_us``, column ``c`` holds positions ``s`` in ``[c - 0.5, c + 0.5)``."""
-    n_cols = int(np.floor(line.length + 0.5)) + 1
-    on = np.zeros((n_rows, n_cols), np.uint16)
-    off = np.zeros((n_rows, n_cols), np.uint16)
-    if len(ev) == 0:
-        return on, off
-    s, n = line.project(ev.x, ev.y)
-    col = np.floor(s + 0.5).astype(np.int64)
-    row = (ev.t - int(t_first_us)) // int(bin_us)
-    keep = (np.abs(n) <= half_width_px) & (col >= 0) & (col < n_cols) & (row >= 0) & (row < n_rows)
-    flat = row[keep] * n_cols + col[keep]
-    pol = ev.p[keep] > 0
-    size = n_rows * n_cols
-    on += np.bincount(flat[pol], minlength=size).reshape(n_rows, n_cols).astype(np.uint16)
-    off += np.bincount(flat[~pol], minlength=size).reshape(n_rows, n_cols).astype(np.uint16)
-    return on, off
-
-
 def counts_rgb(on: np.ndarray, off: np.ndarray) -> np.ndarray:
     """White where no event, ``ON_RGB`` / ``OFF_RGB`` (darker where both) as the counts grow (uint8 RGB)."""
     img = np.full(on.shape + (3,), 1.0, np.float32)
@@ -175,31 +138,6 @@ def counts_rgb(on: np.ndarray, off: np.ndarray) -> np.ndarray:
         a = np.clip(counts.astype(np.float32) / SATURATION_COUNT, 0.0, 1.0)[..., None]
         img *= 1.0 - a * (1.0 - np.asarray(rgb, np.float32) / 255.0)
     return np.round(img * 255.0).astype(np.uint8)
-
-
-def link_segments(t_ms: list[float], crossings: list[np.ndarray], link_px: float = LINK_PX) -> np.ndarray:
-    """Join each crossing to the nearest crossing at the next track time within ``link_px``: (Q, 2, 2) of
-    ``[(s, t), (s, t)]``."""
-    segs = []
-    for i in range(len(t_ms) - 1):
-        a, b = crossings[i], crossings[i + 1]
-        if len(a) == 0 or len(b) == 0:
-            continue
-        d = np.abs(a[:, None] - b[None, :])
-        j = np.argmin(d, axis=1)
-        ok = d[np.arange(len(a)), j] <= link_px
-        for s0, s1 in zip(a[ok], b[j[ok]]):
-            segs.append([[s0, t_ms[i]], [s1, t_ms[i + 1]]])
-    return np.asarray(segs, np.float64).reshape(-1, 2, 2)
-
-
-def track_travel(segments: np.ndarray, n_times: int) -> float:
-    """How far (px) a track moves along the line over its times: the joined crossings' summed motion per chain
-    (segments per time step)."""
-    if len(segments) == 0 or n_times < 2:
-        return 0.0
-    chains = len(segments) / (n_times - 1)
-    return float(np.abs(segments[:, 1, 0] - segments[:, 0, 0]).sum() / max(chains, 1.0))
 
 
 class KymographComputer:
@@ -254,27 +192,32 @@ class KymographComputer:
             maps.append(self.maps.label_map(ann, int(t), T_co[i], T_bc[i]) if valid[i] else None)
             if i % 8 == 7:
                 yield None
-        line, auto = self._line(req, ann, times, maps, view)
-        data = KymographData(tc, line or KymoLine(0, 0, 0, 0), auto, 2 * half, BIN_US / 1e3, -half / 1e3,
+        span = SpanData(ev, t_ext0, n_ext, tc, times, maps, list(scene.object_names), frozenset(view.hidden))
+        data = KymographData(tc, KymoLine(0, 0, 0, 0), req.line is None, 2 * half, BIN_US / 1e3, -half / 1e3,
                              np.zeros((0, 0), np.uint16), np.zeros((0, 0), np.uint16), np.zeros((0, 0, 3), np.uint8))
         data.frame_rgb, data.frame_contours = self._frame(scene, view, ev, times, maps)
-        if line is not None:
-            self._fill(data, scene, view, ev, t_ext0, n_ext, times, maps)
+        if req.line is not None:
+            line = KymoLine(*(float(c) for c in req.line)).clipped(scene.camera.width, scene.camera.height)
+            reading = None if line is None else read_line(span, line)
+        else:
+            reading, data.lines_tried = pick_default_line(span, view)
+        if reading is not None:
+            self._fill(data, reading)
         data.compute_ms = (time.perf_counter() - t_start) * 1e3
         return data
 
-    def _fill(self, data: KymographData, scene, view, ev, t_ext0: int, n_ext: int, times, maps) -> None:
-        """The image, tracks and lags of ``data.line`` into ``data``."""
-        tc, lag_rows = int(view.t_us), int(MAX_LAG_MS * 1000) // BIN_US
-        on, off = bin_events(ev, data.line, t_ext0, n_ext, BIN_US)
-        density = contrast_density(on.astype(np.float32) + off)
+    @staticmethod
+    def _fill(data: KymographData, reading: LineReading) -> None:
+        """The image, tracks and lags of ``reading`` into ``data``."""
+        lag_rows = int(MAX_LAG_MS * 1000) // BIN_US
         r0, r1 = lag_rows, lag_rows + -(-data.span_us // BIN_US)
-        data.counts_on, data.counts_off = on[r0:r1], off[r0:r1]
+        data.line = reading.line
+        data.counts_on, data.counts_off = reading.on[r0:r1], reading.off[r0:r1]
         data.image_rgb = counts_rgb(data.counts_on, data.counts_off)
-        data.t_first_ms = (t_ext0 - tc) / 1e3 + r0 * BIN_US / 1e3
+        data.t_first_ms = reading.events.t_first_ms + r0 * BIN_US / 1e3
         data.n_events = int(data.counts_on.sum() + data.counts_off.sum())
-        data.tracks = self._tracks(scene, view, data.line, times, maps, density, t_ext0 - tc, data.n_events)
-        data.lag = combine([tr.lag for tr in data.tracks])
+        data.tracks = reading.tracks
+        data.lag = reading.lag
 
     def _frame(self, scene, view, ev, times, maps) -> tuple[np.ndarray, list]:
         """The current window's event image and the shown objects' contours at the track time nearest now."""
@@ -289,55 +232,3 @@ class KymographComputer:
         contours = [(name, object_color(k), mask_contours(lm == k)) for k, name in enumerate(scene.object_names)
                     if name not in view.hidden]
         return rgb, [c for c in contours if c[2]]
-
-    def _line(self, req: KymographRequest, ann: Annotator, times, maps, view) -> tuple[KymoLine | None, bool]:
-        """The requested line clipped to the image, else the default line; and whether it is the default."""
-        cam = ann.camera
-        if req.line is not None:
-            return KymoLine(*(float(c) for c in req.line)).clipped(cam.width, cam.height), False
-        ok = [i for i, m in enumerate(maps) if m is not None]
-        if not ok:
-            return None, True
-        tc = int(view.t_us)
-
-        def nearest(t):
-            return maps[min(ok, key=lambda i: abs(int(times[i]) - t))]
-
-        names = ann.names
-        shown = [k for k, n in enumerate(names) if n not in view.hidden]
-        preferred = names.index(view.selected) if view.selected in names and view.selected not in view.hidden else None
-        line = default_line(nearest(tc), nearest(tc - MOTION_PROBE_US), nearest(tc + MOTION_PROBE_US), len(names),
-                            preferred, shown=shown)
-        return line, True
-
-    def _tracks(self, scene, view, line: KymoLine, times, maps, density, t_ext0_rel_us: int,
-                n_events: int) -> list[EdgeTrack]:
-        """Each shown object's crossings with ``line`` at the track times and the events' lag behind them."""
-        names = scene.object_names
-        s, uv = line.samples()
-        n_cols = density.shape[1]
-        d_axis, _ = line.axes()
-        cols = np.arange(n_cols, dtype=np.float64)
-        uv_cols = np.column_stack([line.u0 + cols * d_axis[0], line.v0 + cols * d_axis[1]])
-        crossings: list[list[np.ndarray]] = [[] for _ in names]
-        dist: list[list[np.ndarray]] = [[] for _ in names]
-        t_ms = []
-        for t, lm in zip(times, maps):
-            if lm is None:
-                continue
-            t_ms.append((int(t) - int(view.t_us)) / 1e3)
-            at_cols = labels_along(lm, uv_cols)
-            for k, c in enumerate(edge_crossings(labels_along(lm, uv), s, len(names))):
-                crossings[k].append(c)
-                dist[k].append(signed_edge_distance(at_cols == k, c, n_cols))
-        tracks = []
-        for k, name in enumerate(names):
-            if name in view.hidden or not any(len(c) for c in crossings[k]):
-                continue
-            pt_t = np.concatenate([np.full(len(c), t) for t, c in zip(t_ms, crossings[k])])
-            pt_s = np.concatenate(crossings[k])
-            segs = link_segments(t_ms, crossings[k])
-            lag = estimate_lag(density, t_ext0_rel_us / 1e3, BIN_US / 1e3, t_ms, np.array(dist[k]), n_events,
-                               track_travel(segs, len(t_ms)))
-            tracks.append(EdgeTrack(name, object_color(k), pt_t, pt_s, segs, lag))
-        return tracks

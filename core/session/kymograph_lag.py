@@ -10,9 +10,12 @@ inside the silhouette). For a lag ``tau`` two scores are read at the rows ``t + 
   object sweeps a family of parallel streaks whose boundary, not any one streak, is the silhouette's).
 
 The lag is the maximum of ``edge + REGION_WEIGHT * |region|`` (which streak family), moved to the edge score's own
-maximum within ``REFINE_MS`` of it (where exactly: a lone streak entering a region band would pull the sum) and
-refined by a parabola through its neighbours; it is *clear* when no lag farther than a few ms scores nearly as
-well on the sum (texture streaks, repeated edges).
+maximum within ``REFINE_PX`` of motion of it (where exactly: a lone streak entering a region band would pull the
+sum) and refined by a parabola through the edge score one time bin either side (the scores are linear between
+the bins' centres: a parabola through closer samples would lock the lag to those). Only track times whose
+crossings move along the line count in full (``MOVING_PX_PER_MS``): a still edge tells nothing about the lag,
+yet shifted onto a busy moment it would score. How far to trust the lag (its 1σ, or why it is too weak to read) is
+:mod:`~evpose.core.session.kymograph_confidence`'s.
 
 Sign: ``lag > 0`` means the events happen *later* than the track says (the track runs ahead): the poses in
 effect are taken ``lag`` too late on the pose clock, i.e. the clock offset in effect is ``lag`` too large. A
@@ -25,19 +28,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evpose.core.align.correlation_peak import parabolic_offset
-
 #: Lags are searched within +- this many ms (a 47 ms wrong clock must be found).
 MAX_LAG_MS = 80.0
 #: Lag grid step, ms.
 LAG_STEP_MS = 0.25
-#: A peak is *clear* when it stands above the best other peak (farther than ``SEPARATION_MS``) by at least this
-#: share of its height above the median score.
-MIN_PROMINENCE = 0.15
-SEPARATION_MS = 5.0
-#: At least this many track times with a crossing, and this many events on the line, are needed.
+#: At least this many track times with a crossing are needed.
 MIN_TRACK_TIMES = 4
-MIN_EVENTS = 50
+#: Track times count in full where their crossings move at least this fast along the line (px/ms), less in
+#: proportion below: a still edge at a busy moment would pull the lag to that moment.
+MOVING_PX_PER_MS = 0.05
+#: A crossing's speed is measured over this long before and after a track time (ms) ...
+SPEED_BASE_MS = 8.0
+#: ... and a crossing moving farther than this between two track times (px) is another edge, not motion.
+MAX_STEP_PX = 8.0
+#: Events within this distance (px) of a crossing count as near the track.
+NEAR_PX = 2.0
 #: A track must move at least this far along the line over the span (px).
 MIN_TRAVEL_PX = 3.0
 #: Smoothing of the density before the search: (time bins, px).
@@ -48,41 +53,9 @@ EDGE_SIGMA_PX = 1.0
 REGION_GAP_PX, REGION_WIDTH_PX = 1.0, 5.0
 #: Weight of the region score against the edge score.
 REGION_WEIGHT = 3.0
-#: The lag is refined on the edge score alone within this many ms of the combined score's peak.
-REFINE_MS = 1.0
-
-
-@dataclass
-class LagEstimate:
-    """The lag of the events behind a track (see the module docstring for the sign).
-
-    Attributes
-    ----------
-    lag_ms : float or None
-        The score's peak; None when the track is too short or does not move along the line, the line saw too
-        few events, or the peak sits at the end of the search.
-    lags_ms, score : np.ndarray
-        The searched lags and the combined score at each (empty when nothing was searched).
-    edge_score : np.ndarray
-        The edge score alone at each lag.
-    prominence : float
-        The peak's height above the best other peak (farther than ``SEPARATION_MS``), as a share of its height
-        above the median score: near 0 when another lag fits about as well.
-    n_times : int
-        Track times with at least one crossing.
-    """
-
-    lag_ms: float | None
-    lags_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    score: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    edge_score: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    prominence: float = 0.0
-    n_times: int = 0
-
-    @property
-    def clear(self) -> bool:
-        """A lag whose peak stands out (see :data:`MIN_PROMINENCE`)."""
-        return self.lag_ms is not None and self.prominence >= MIN_PROMINENCE
+#: The lag is refined on the edge score alone within the time the edge takes to move this far (px) from the
+#: combined score's peak, at least ``REFINE_MS`` and at most ``REFINE_MAX_MS``.
+REFINE_PX, REFINE_MS, REFINE_MAX_MS = 1.5, 1.0, 5.0
 
 
 def contrast_density(counts: np.ndarray, sigma=SMOOTH_SIGMA) -> np.ndarray:
@@ -91,16 +64,6 @@ def contrast_density(counts: np.ndarray, sigma=SMOOTH_SIGMA) -> np.ndarray:
 
     d = gaussian_filter(np.asarray(counts, np.float32), sigma=sigma, mode="constant")
     return d - d.mean(axis=1, keepdims=True)
-
-
-def signed_edge_distance(inside: np.ndarray, crossings: np.ndarray, n_cols: int) -> np.ndarray:
-    """Per column ``c`` (s = c px): the distance to the nearest crossing, > 0 where ``inside`` (bool per column);
-    +-inf without crossings."""
-    c = np.arange(n_cols, dtype=np.float64)
-    if len(crossings) == 0:
-        return np.where(inside, np.inf, -np.inf)
-    d = np.abs(c[:, None] - np.asarray(crossings, np.float64)[None, :]).min(axis=1)
-    return np.where(inside, d, -d)
 
 
 def edge_weights(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -117,83 +80,245 @@ def edge_weights(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edge, region
 
 
-def row_scores(density: np.ndarray, weights: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``sum_c density[r, c] * weights[i, c]`` at fractional rows ``rows`` (n_lags, n_times) (linear between
-    rows, 0 outside): (n_lags,) summed over the track times."""
-    P = density @ weights.T                           # (n_rows, n_times): every row against every time's weights
+def time_scores(image: np.ndarray, weights: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``sum_c image[r, c] * weights[i, c]`` at fractional rows ``rows`` (n_lags, n_times) (linear between rows,
+    0 outside): (n_lags, n_times), one column per track time."""
+    P = image @ weights.T                             # (n_rows, n_times): every row against every time's weights
     n_rows = P.shape[0]
     r0 = np.floor(rows).astype(np.int64)
     f = rows - r0
     cols = np.broadcast_to(np.arange(weights.shape[0]), rows.shape)
     v0 = np.where((r0 >= 0) & (r0 < n_rows), P[np.clip(r0, 0, n_rows - 1), cols], 0.0)
     v1 = np.where((r0 + 1 >= 0) & (r0 + 1 < n_rows), P[np.clip(r0 + 1, 0, n_rows - 1), cols], 0.0)
-    return ((1 - f) * v0 + f * v1).sum(axis=1)
+    return (1 - f) * v0 + f * v1
 
 
-def parabolic(lags_ms: np.ndarray, score: np.ndarray, i: int) -> float:
-    """The lag of sample ``i`` refined by a parabola through it and its neighbours."""
-    lag = float(lags_ms[i])
-    if 0 < i < len(score) - 1:
-        lag += parabolic_offset(score[i - 1], score[i], score[i + 1]) * float(lags_ms[1] - lags_ms[0])
-    return lag
+@dataclass
+class LineEvents:
+    """The events within reach of a line, binned: ``counts`` (n_rows, n_cols) per time bin and column (column ``c``
+    at ``s = c`` px), row ``r`` from ``t_first_ms + r * bin_ms`` (ms, relative to the current time), and their
+    :func:`contrast_density`."""
+
+    counts: np.ndarray
+    t_first_ms: float
+    bin_ms: float
+    density: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.counts = np.asarray(self.counts, np.float32)
+        self.density = contrast_density(self.counts)
+
+    def rows(self, t_ms: np.ndarray) -> np.ndarray:
+        """Fractional rows of times ``t_ms`` (a row's centre at an integer)."""
+        return (np.asarray(t_ms, np.float64) - self.t_first_ms) / self.bin_ms - 0.5
+
+    def near_counts(self, window_ms: float) -> np.ndarray:
+        """``counts`` summed over ``window_ms`` around each row: the events a track time stands for."""
+        from scipy.ndimage import uniform_filter1d
+
+        size = max(int(round(window_ms / self.bin_ms)), 1)
+        return uniform_filter1d(self.counts, size, axis=0, mode="constant") * size
 
 
-def peak_lag(lags_ms: np.ndarray, score: np.ndarray, edge: np.ndarray | None = None) -> tuple[float, float]:
-    """``(lag, prominence)``: the score's maximum (moved to ``edge``'s maximum within ``REFINE_MS`` when given),
-    refined by a parabola, and the score's peak height above the best score farther than ``SEPARATION_MS`` as a
-    share of its height above the median."""
-    i = int(np.argmax(score))
-    j = i
-    if edge is not None:
-        near = np.nonzero(np.abs(lags_ms - lags_ms[i]) <= REFINE_MS)[0]
-        j = int(near[np.argmax(edge[near])])
-    lag = parabolic(lags_ms, score if edge is None else edge, j)
-    peak, med = float(score[i]), float(np.median(score))
-    far = np.abs(lags_ms - lags_ms[i]) > SEPARATION_MS
-    other = float(score[far].max()) if far.any() else med
-    return lag, (peak - other) / max(peak - med, 1e-12)
+@dataclass
+class TimeParts:
+    """Per lag (rows) and track time (columns): the edge score, the region score and the events within
+    ``NEAR_PX`` of the crossings; ``speed`` (n_times,) the crossings' speed along the line at each time (px/ms);
+    ``bin_ms`` the time bins of the events they were read on."""
+
+    edge: np.ndarray
+    region: np.ndarray
+    near: np.ndarray
+    speed: np.ndarray
+    bin_ms: float = 1.0
+
+    @staticmethod
+    def pooled(parts: list[TimeParts]) -> TimeParts:
+        """The track times of all ``parts`` (read on the same time bins) side by side."""
+        return TimeParts(*(np.concatenate([getattr(p, f) for p in parts], axis=-1)
+                           for f in ("edge", "region", "near", "speed")), parts[0].bin_ms)
 
 
-def lag_curve(density: np.ndarray, t_first_ms: float, bin_ms: float, track_t_ms, distances,
-              max_lag_ms: float = MAX_LAG_MS, step_ms: float = LAG_STEP_MS
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(lags, combined score, edge score)`` of one object: ``density`` from :func:`contrast_density` (rows:
-    ``bin_ms`` bins from ``t_first_ms``), ``distances`` (n_times, n_cols) its signed edge distances at
-    ``track_t_ms``."""
+@dataclass
+class LagEstimate:
+    """The lag of the events behind one or more tracks (see the module docstring for the sign), with its 1σ or
+    the reason it is too weak to read.
+
+    Attributes
+    ----------
+    lag_ms, sigma_ms : float or None
+        The reading and its standard deviation (ms); None when too weak to read (see ``weak``).
+    weak : str or None
+        Why the reading is too weak (one of :mod:`~evpose.core.session.kymograph_confidence`'s reasons); None
+        when it is readable.
+    peak_ms : float or None
+        The score's peak, also when too weak (None: nothing was searched).
+    lags_ms, score, edge_score : np.ndarray
+        The searched lags, the combined score and the edge score alone at each (empty when nothing was searched).
+    n_times : int
+        Track times with at least one crossing.
+    n_near : int
+        Events within ``NEAR_PX`` of the track moved by the peak lag.
+    n_moving : float
+        Track times whose crossings move along the line (those slower than ``MOVING_PX_PER_MS`` in part).
+    speed : float
+        The edge's speed along the line where the events are (px/ms, see
+        :func:`~evpose.core.session.kymograph_confidence.evidence_speed`).
+    evidence : float
+        How much the line tells about the lag (see :func:`~evpose.core.session.kymograph_confidence.evidence`):
+        the default line is the one with the most.
+    spread_ms : float or None
+        The part of σ the block bootstrap sees (ms; None until judged that far).
+    prominence : float or None
+        The edge score at the reading above its best rival peak farther than ``max(RIVAL_MS, 2σ)``, as a share of
+        its height above the median (see :func:`~evpose.core.session.kymograph_confidence.prominence`; None until
+        judged that far).
+    parts : TimeParts or None
+        The per-time scores the estimate was made of (the bootstrap redraws them, :func:`combine` pools them).
+    judged : bool
+        Whether σ and the verdict (``lag_ms`` or ``weak``) are set; see :func:`judged`.
+    """
+
+    lag_ms: float | None
+    sigma_ms: float | None = None
+    weak: str | None = None
+    peak_ms: float | None = None
+    lags_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    score: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    edge_score: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_times: int = 0
+    n_near: int = 0
+    n_moving: float = 0.0
+    speed: float = 0.0
+    evidence: float = 0.0
+    spread_ms: float | None = None
+    prominence: float | None = None
+    parts: TimeParts | None = field(default=None, repr=False)
+    judged: bool = False
+
+    @property
+    def readable(self) -> bool:
+        return self.lag_ms is not None
+
+
+def lag_parts(events: LineEvents, track_t_ms, distances, max_lag_ms: float = MAX_LAG_MS,
+              step_ms: float = LAG_STEP_MS) -> tuple[np.ndarray, TimeParts]:
+    """``(lags, parts)`` of one object: per lag and track time its edge and region scores on ``events.density``,
+    the events near its crossings, and its crossings' speed; ``distances`` (n_times, n_cols) its signed edge
+    distances at ``track_t_ms``."""
     lags = np.arange(-max_lag_ms, max_lag_ms + 0.5 * step_ms, step_ms)
-    rows = (np.asarray(track_t_ms, np.float64)[None, :] + lags[:, None] - t_first_ms) / bin_ms - 0.5
-    edge, region = edge_weights(np.asarray(distances, np.float64))
-    n = max(len(track_t_ms), 1)
-    e = row_scores(density, edge, rows) / n
-    r = row_scores(density, region, rows) / n
-    return lags, e + REGION_WEIGHT * np.abs(r), e
+    t = np.asarray(track_t_ms, np.float64)
+    rows = events.rows(t[None, :] + lags[:, None])
+    d = np.asarray(distances, np.float64)
+    speed = edge_speeds(d, t)
+    gate = np.clip(speed / MOVING_PX_PER_MS, 0.0, 1.0)[:, None]      # a still edge says nothing about the lag
+    edge, region = edge_weights(d)
+    step = float(np.median(np.diff(t))) if len(t) > 1 else events.bin_ms
+    near = (np.abs(d) <= NEAR_PX) * gate
+    return lags, TimeParts(time_scores(events.density, edge * gate, rows),
+                           time_scores(events.density, region * gate, rows),
+                           time_scores(events.near_counts(step), near, rows), speed, events.bin_ms)
 
 
-def estimate_lag(density: np.ndarray, t_first_ms: float, bin_ms: float, track_t_ms, distances,
-                 n_events: int, travel_px: float) -> LagEstimate:
-    """The lag of the events behind one object's track (see :func:`lag_curve` and :class:`LagEstimate`);
-    ``travel_px``: how far the track moves along the line over the span (a still edge has no lag to measure)."""
+def edge_speeds(d: np.ndarray, t_ms: np.ndarray) -> np.ndarray:
+    """(n_times,) how fast the crossings move along the line at each time (px/ms): over the columns within
+    ``NEAR_PX`` of a crossing, the median of how fast their signed distance ``d`` (n_times, n_cols) changes over
+    ``SPEED_BASE_MS`` before and after, the smaller of the two (where the nearest crossing changes, one of them
+    jumps; the label maps move a slow edge in whole pixels, so a shorter base would often see no motion).
+    Changes beyond ``MAX_STEP_PX`` per track step are jumps, not motion. 0 where no crossing is near or moves."""
+    n = len(t_ms)
+    if n < 2:
+        return np.zeros(n)
+    t = np.asarray(t_ms, np.float64)
+    k = int(np.clip(round(SPEED_BASE_MS / float(np.median(np.diff(t)))), 1, n - 1))
+    finite = np.where(np.isfinite(d), d, np.nan)
+    change = np.abs(finite[k:] - finite[:-k])
+    rate = np.where(change <= k * MAX_STEP_PX, change / (t[k:] - t[:-k])[:, None], np.nan)
+    pad = np.full((k, d.shape[1]), np.nan)
+    best = np.fmin(np.vstack([pad, rate]), np.vstack([rate, pad]))     # NaN only where neither side is known
+    ok = (np.abs(d) <= NEAR_PX) & np.isfinite(best)
+    near = np.where(ok, best, np.inf)
+    m = ok.sum(axis=1)                                     # the median of each row's m near values
+    srt = np.sort(near, axis=1)
+    rows = np.arange(n)
+    lo, hi = srt[rows, np.maximum((m - 1) // 2, 0)], srt[rows, np.maximum(m // 2, 0)]
+    return np.where(m > 0, 0.5 * (lo + hi), 0.0)
+
+
+def curves(edge_parts: np.ndarray, region_parts: np.ndarray, w: np.ndarray | None = None):
+    """``(score, edge score)`` of per-time parts (n_lags, n_times) summed with weights ``w`` (n_times,) or
+    (n_times, B) (default all 1) over the number of times: the region sum enters by its size."""
+    n = max(edge_parts.shape[1], 1)
+    if w is None:
+        w = np.ones(edge_parts.shape[1])
+    e = edge_parts @ w / n
+    return e + REGION_WEIGHT * np.abs(region_parts @ w / n), e
+
+
+def refine_window(parts: TimeParts) -> float:
+    """How far (ms) from the combined score's peak the edge score's own maximum is looked for: the time the
+    moving crossings take to move ``REFINE_PX`` at their median speed."""
+    moving = parts.speed[parts.speed >= MOVING_PX_PER_MS]
+    if not len(moving):
+        return REFINE_MS
+    return float(np.clip(REFINE_PX / np.median(moving), REFINE_MS, REFINE_MAX_MS))
+
+
+def peak_lags(lags_ms: np.ndarray, score: np.ndarray, edge: np.ndarray, refine_ms: float = REFINE_MS,
+              bin_ms: float = 1.0) -> np.ndarray:
+    """The lags (B,) of curves (n_lags, B): each score's maximum moved to its edge score's maximum within
+    ``refine_ms`` (which streak family, then where exactly) and refined by a parabola through it and the edge
+    score one time bin (``bin_ms``) either side: the scores are linear between the bins' centres, so their
+    maxima sit on those and a parabola through neighbouring grid samples would lock the lag to them."""
+    n, B = score.shape
+    step = float(lags_ms[1] - lags_ms[0])
+    k = int(round(refine_ms / step))
+    h = max(int(round(bin_ms / step)), 1)
+    cols = np.arange(B)
+    i = np.argmax(score, axis=0)
+    cand = np.clip(i[None, :] + np.arange(-k, k + 1)[:, None], 0, n - 1)
+    j = cand[np.argmax(edge[cand, cols], axis=0), cols]
+    ym, y0, yp = edge[np.maximum(j - h, 0), cols], edge[j, cols], edge[np.minimum(j + h, n - 1), cols]
+    den = ym - 2.0 * y0 + yp
+    ok = (den < 0) & (j >= h) & (j < n - h)
+    off = np.where(ok, np.clip(0.5 * (ym - yp) / np.where(ok, den, -1.0), -0.5, 0.5), 0.0)
+    return lags_ms[j] + off * h * step
+
+
+def estimate_lag(events: LineEvents, track_t_ms, distances, travel_px: float, judge: bool = True) -> LagEstimate:
+    """The lag of the events behind one object's track (see :func:`lag_parts` and :class:`LagEstimate`);
+    ``travel_px``: how far the track moves along the line over the span (a still edge has no lag to measure).
+    ``judge`` False: the peak and its evidence only, no σ and no verdict yet (see :func:`judged`)."""
+    from evpose.core.session.kymograph_confidence import FEW_TIMES, NO_MOTION
+
     d = np.asarray(distances, np.float64)
     n_times = int(np.isfinite(d).any(axis=1).sum()) if d.size else 0
-    if n_times < MIN_TRACK_TIMES or n_events < MIN_EVENTS or travel_px < MIN_TRAVEL_PX:
-        return LagEstimate(None, n_times=n_times)
-    lags, score, edge = lag_curve(density, t_first_ms, bin_ms, track_t_ms, d)
-    return judged(lags, score, edge, n_times)
+    if n_times < MIN_TRACK_TIMES:
+        return LagEstimate(None, weak=FEW_TIMES, n_times=n_times, judged=True)
+    if travel_px < MIN_TRAVEL_PX:
+        return LagEstimate(None, weak=NO_MOTION, n_times=n_times, judged=True)
+    lags, parts = lag_parts(events, track_t_ms, d)
+    return judged(lags, parts, n_times, judge)
 
 
-def judged(lags: np.ndarray, score: np.ndarray, edge: np.ndarray, n_times: int) -> LagEstimate:
-    """The estimate of the score curves: their peak (None at the end of the search) and its prominence."""
-    lag, prominence = peak_lag(lags, score, edge)
-    inside = abs(lag) < lags[-1] - (lags[1] - lags[0])
-    return LagEstimate(lag if inside else None, lags, score, edge, prominence, n_times)
+def judged(lags: np.ndarray, parts: TimeParts, n_times: int, judge: bool = True) -> LagEstimate:
+    """The estimate of pooled per-time parts: the peak and its evidence
+    (:func:`~evpose.core.session.kymograph_confidence.measure`), and unless ``judge`` is False its 1σ and
+    whether it is readable (:func:`~evpose.core.session.kymograph_confidence.judge`)."""
+    from evpose.core.session import kymograph_confidence as conf
+
+    score, edge = curves(parts.edge, parts.region)
+    lag = peak_lags(lags, score[:, None], edge[:, None], refine_window(parts), parts.bin_ms)
+    est = conf.measure(LagEstimate(None, None, None, float(lag[0]), lags, score, edge, n_times, parts=parts))
+    return conf.judge(est) if judge else est
 
 
-def combine(estimates: list[LagEstimate]) -> LagEstimate:
-    """One estimate from several objects' curves on the same lag grid: their sum weighted by track times."""
-    used = [e for e in estimates if len(e.score) and e.n_times]
+def combine(estimates: list[LagEstimate], judge: bool = True) -> LagEstimate:
+    """One estimate from several objects' tracks on the same lag grid: their per-time parts pooled."""
+    used = [e for e in estimates if e.parts is not None]
     if not used:
-        return LagEstimate(None, n_times=sum(e.n_times for e in estimates))
-    n = np.array([e.n_times for e in used], np.float64)
-    score = np.sum([w * e.score for w, e in zip(n, used)], axis=0) / n.sum()
-    edge = np.sum([w * e.edge_score for w, e in zip(n, used)], axis=0) / n.sum()
-    return judged(used[0].lags_ms, score, edge, int(n.sum()))
+        weak = next((e.weak for e in estimates if e.weak), None)
+        return LagEstimate(None, weak=weak, n_times=sum(e.n_times for e in estimates), judged=True)
+    if len(used) == 1:
+        return used[0]
+    return judged(used[0].lags_ms, TimeParts.pooled([e.parts for e in used]), sum(e.n_times for e in used), judge)

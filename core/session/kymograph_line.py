@@ -17,6 +17,10 @@ import numpy as np
 SAMPLE_STEP_PX = 0.25
 #: The default line reaches this far beyond the object's silhouette on both sides (px).
 DEFAULT_LINE_MARGIN_PX = 14.0
+#: A silhouette centroid moving less than this (px) does not move (for the default line).
+MIN_MOTION_PX = 0.5
+#: Besides its centre, candidate lines cross an object this share of its half width to either side.
+OFFSET_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -72,24 +76,41 @@ class KymoLine:
 
 
 def labels_along(label_map: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """The label map's value at the pixel nearest each sample ``uv`` (n, 2) (-1 outside the image)."""
-    H, W = label_map.shape
+    """The label map's value at the pixel nearest each sample ``uv`` (n, 2) (-1 outside the image); a stack of
+    maps (..., H, W) gives (..., n)."""
+    H, W = label_map.shape[-2:]
     u = np.rint(uv[:, 0]).astype(np.int64)
     v = np.rint(uv[:, 1]).astype(np.int64)
     ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    out = np.full(len(uv), -1, np.int16)
-    out[ok] = label_map[v[ok], u[ok]]
+    out = np.full(label_map.shape[:-2] + (len(uv),), -1, np.int16)
+    out[..., ok] = label_map[..., v[ok], u[ok]]
     return out
 
 
-def edge_crossings(labels: np.ndarray, s: np.ndarray, n_objects: int) -> list[np.ndarray]:
-    """Per object, the positions ``s`` (px) where the line enters or leaves its visible silhouette: the midpoints
-    between consecutive samples whose labels differ (an occlusion boundary counts for both objects)."""
-    labels = np.asarray(labels)
-    i = np.nonzero(labels[1:] != labels[:-1])[0]
-    mid = 0.5 * (s[i] + s[i + 1])
-    a, b = labels[i], labels[i + 1]
-    return [mid[(a == k) | (b == k)] for k in range(n_objects)]
+def crossing_distances(labels: np.ndarray, s: np.ndarray, labels_cols: np.ndarray,
+                       k: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """Object ``k``'s crossings with the line at each of several times and the signed distance of every column
+    to the nearest one.
+
+    ``labels`` (n_t, n_s): the labels at the samples ``s`` (px) along the line per time; ``labels_cols``
+    (n_t, n_cols): the labels at the columns (``s = c`` px); at least two samples. Returns the crossings per time
+    (the midpoints between consecutive samples whose labels differ, one of them ``k``: an occlusion boundary
+    counts for both objects) and (n_t, n_cols) the distance of column ``c`` to the nearest crossing at that time,
+    > 0 inside the silhouette (``labels_cols == k``), +-inf without crossings."""
+    a, b = labels[:, :-1], labels[:, 1:]
+    at = (a != b) & ((a == k) | (b == k))                      # a crossing between samples j and j + 1
+    mid = 0.5 * (s[:-1] + s[1:])
+    n_j = len(mid)
+    j = np.arange(n_j)
+    before = np.maximum.accumulate(np.where(at, j, -1), axis=1)                   # last crossing <= j
+    after = np.minimum.accumulate(np.where(at, j, n_j)[:, ::-1], axis=1)[:, ::-1]  # first crossing >= j
+    c = np.arange(labels_cols.shape[1], dtype=np.float64)
+    jl = np.searchsorted(mid, c, side="right") - 1             # the last midpoint at or left of each column
+    left = np.where(jl >= 0, before[:, np.clip(jl, 0, n_j - 1)], -1)
+    right = np.where(jl + 1 < n_j, after[:, np.clip(jl + 1, 0, n_j - 1)], n_j)
+    d = np.minimum(np.where(left >= 0, c - mid[np.clip(left, 0, n_j - 1)], np.inf),
+                   np.where(right < n_j, mid[np.clip(right, 0, n_j - 1)] - c, np.inf))
+    return [mid[row] for row in at], np.where(labels_cols == k, d, -d)
 
 
 def mask_extent_along(mask: np.ndarray, centre: np.ndarray, d: np.ndarray) -> float:
@@ -101,17 +122,52 @@ def mask_extent_along(mask: np.ndarray, centre: np.ndarray, d: np.ndarray) -> fl
     return float(np.abs(proj).max())
 
 
-def default_line(label_now: np.ndarray, label_before: np.ndarray, label_after: np.ndarray, n_objects: int,
-                 preferred: int | None = None, margin_px: float = DEFAULT_LINE_MARGIN_PX,
-                 shown=None) -> KymoLine | None:
-    """A line across an object along its image motion: through the centroid of its visible silhouette in
-    ``label_now``, in the direction its centroid moves from ``label_before`` to ``label_after``, reaching
-    ``margin_px`` beyond the silhouette on both sides (clipped to the image). The object is ``preferred``
-    when visible, else the one whose centroid moves most (the largest silhouette when none moves more than
-    0.5 px). Only the objects in ``shown`` (indices; default all) are candidates: a hidden object has no track.
-    None when no candidate is visible."""
-    H, W = label_now.shape
-    best, best_key = None, None
+def silhouette_motion(k: int, label_a: np.ndarray, label_b: np.ndarray) -> np.ndarray:
+    """How far (px, ``(du, dv)``) object ``k``'s silhouette centroid moves from ``label_a`` to ``label_b`` (0 when
+    it is missing from either)."""
+    ma, mb = label_a == k, label_b == k
+    if not (ma.any() and mb.any()):
+        return np.zeros(2)
+    va, ua = np.nonzero(ma)
+    vb, ub = np.nonzero(mb)
+    return np.array([ub.mean() - ua.mean(), vb.mean() - va.mean()])
+
+
+def line_through(mask: np.ndarray, p: np.ndarray, d: np.ndarray, margin_px: float) -> KymoLine | None:
+    """The line through ``p`` along the unit direction ``d`` reaching ``margin_px`` beyond ``mask`` on both sides
+    (clipped to the image)."""
+    H, W = mask.shape
+    reach = mask_extent_along(mask, p, d) + margin_px
+    line = KymoLine(float(p[0] - reach * d[0]), float(p[1] - reach * d[1]),
+                    float(p[0] + reach * d[0]), float(p[1] + reach * d[1]))
+    return line.clipped(W, H)
+
+
+def directions(*motions: np.ndarray, min_px: float = MIN_MOTION_PX, min_angle_deg: float = 20.0) -> list:
+    """Unit directions of the ``motions`` longer than ``min_px``, without near repeats (either way round);
+    ``[(1, 0), (0, 1)]`` (along the rows and the columns) when none is."""
+    out = []
+    for m in motions:
+        n = float(np.hypot(*m))
+        if n > min_px:
+            d = m / n
+            if all(abs(float(d @ e)) < np.cos(np.radians(min_angle_deg)) for e in out):
+                out.append(d)
+    return out or [np.array([1.0, 0.0]), np.array([0.0, 1.0])]
+
+
+def candidate_lines(label_now: np.ndarray, label_before: np.ndarray, label_after: np.ndarray,
+                    label_first: np.ndarray, label_last: np.ndarray, n_objects: int, preferred: int | None = None,
+                    margin_px: float = DEFAULT_LINE_MARGIN_PX, shown=None) -> list[tuple[int, KymoLine]]:
+    """Lines across the objects along their image motion, ``[(object, line)]``, the likeliest first.
+
+    Per visible object (only those in ``shown``, indices; default all): along the way its silhouette centroid
+    moves now (``label_before`` -> ``label_after``) and over the span (``label_first`` -> ``label_last``), each
+    through the centroid in ``label_now`` and through points ``OFFSET_SHARE`` of the silhouette's half width to
+    either side, reaching ``margin_px`` beyond the silhouette (clipped to the image). Objects are ordered
+    ``preferred`` first, then moving now before still, faster first, larger first; the centre line of an
+    object's first direction comes first."""
+    ranked = []
     for k in (range(n_objects) if shown is None else shown):
         m = label_now == k
         area = int(m.sum())
@@ -119,23 +175,30 @@ def default_line(label_now: np.ndarray, label_before: np.ndarray, label_after: n
             continue
         v, u = np.nonzero(m)
         c = np.array([u.mean(), v.mean()])
-        motion = np.zeros(2)
-        mb, ma = label_before == k, label_after == k
-        if mb.any() and ma.any():
-            vb, ub = np.nonzero(mb)
-            va, ua = np.nonzero(ma)
-            motion = np.array([ua.mean() - ub.mean(), va.mean() - vb.mean()])
-        speed = float(np.hypot(*motion))
-        moving = speed > 0.5
+        now = silhouette_motion(k, label_before, label_after)
+        speed = float(np.hypot(*now))
+        moving = speed > MIN_MOTION_PX
         key = (k == preferred, moving, speed if moving else 0.0, area)
-        if best_key is None or key > best_key:
-            best, best_key = (k, c, motion, m), key
-    if best is None:
-        return None
-    _, c, motion, m = best
-    norm = float(np.hypot(*motion))
-    d = motion / norm if norm > 0.5 else np.array([1.0, 0.0])
-    reach = mask_extent_along(m, c, d) + margin_px
-    line = KymoLine(float(c[0] - reach * d[0]), float(c[1] - reach * d[1]),
-                    float(c[0] + reach * d[0]), float(c[1] + reach * d[1]))
-    return line.clipped(W, H)
+        ranked.append((key, k, m, c, directions(now, silhouette_motion(k, label_first, label_last))))
+    ranked.sort(key=lambda r: r[0], reverse=True)
+    out = []
+    for _, k, m, c, dirs in ranked:
+        for d in dirs:
+            across = np.array([-d[1], d[0]])
+            half = mask_extent_along(m, c, across)
+            for off in (0.0, -OFFSET_SHARE * half, OFFSET_SHARE * half):
+                line = line_through(m, c + off * across, d, margin_px)
+                if line is not None:
+                    out.append((k, line))
+    return out
+
+
+def default_line(label_now: np.ndarray, label_before: np.ndarray, label_after: np.ndarray, n_objects: int,
+                 preferred: int | None = None, margin_px: float = DEFAULT_LINE_MARGIN_PX,
+                 shown=None) -> KymoLine | None:
+    """The likeliest of :func:`candidate_lines` (motion now only): through the centroid of the ``preferred``
+    object when visible, else of the one whose centroid moves most (the largest silhouette when none moves more
+    than ``MIN_MOTION_PX``), along its motion. None when no candidate is visible."""
+    lines = candidate_lines(label_now, label_before, label_after, label_now, label_now, n_objects, preferred,
+                            margin_px, shown)
+    return lines[0][1] if lines else None

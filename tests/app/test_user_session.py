@@ -39,9 +39,13 @@ def test_the_whole_verify_task_on_the_demo_scene(qtbot, window, demo_copy, tmp_p
     # 1. the kymograph across an edge shows the clock error: events lag the projected edges by tens of ms (the
     #    5 mm / 3 deg pose errors bias the reading by a few ms: it is a look, the fit comes next)
     window.spacetime.controls.kymograph_button.click()
-    qtbot.waitUntil(lambda: window.kymograph.shift_ms is not None, timeout=60_000)
+    qtbot.waitUntil(lambda: window.kymograph.data is not None, timeout=60_000)
     lag_before = window.kymograph.shift_ms
-    assert -50.0 < lag_before < -20.0, lag_before                 # the true error: 35 ms
+    if lag_before is not None:                                    # the true error: 35 ms
+        assert -50.0 < lag_before < -20.0, lag_before
+    else:     # issue 23.8: with every pose 5 mm / 3 deg off the lines across the objects read -53, -18 and -26 ms,
+        # +- 4-6 ms: the honest answer is that they disagree, not one of them
+        assert "disagree" in window.kymograph.data.lag.weak, window.kymograph.data.lag.weak
 
     # 2. Auto: the clock and every pose from the events, accepted (one undo step)
     window.auto_answer["auto"] = True

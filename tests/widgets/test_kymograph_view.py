@@ -1,15 +1,17 @@
-"""The kymograph view (issue 16, point 1): on a synthetic scene with a known clock, the view's measured shift is ~0
-at the true clock and the clock error when the clock is 20 ms wrong (asserted on the numbers the widget holds and
-shows), its tracks and image are the data's, and a drag on its frame preview draws the line."""
+"""The kymograph view (issue 16, point 1; issue 23, part 8): on a synthetic scene with a known clock, the view's
+measured shift is ~0 at the true clock and the clock error when the clock is 20 ms wrong, with its 1σ (asserted on
+the numbers the widget holds and shows), "too weak to read" and why where the data says so, its tracks and image
+are the data's, and a drag on its frame preview draws the line."""
 from __future__ import annotations
 
 import re
 
 import numpy as np
 import pytest
-from kymograph_scene import TRUE_OFFSET_US, moving_session
+from kymograph_scene import TRUE_OFFSET_US, kymograph_scene, moving_session, still_time_us
 from PySide6 import QtCore
 
+from evpose.core.session import kymograph_confidence as conf
 from evpose.core.session.kymograph import KymographComputer, KymographRequest
 
 
@@ -33,11 +35,11 @@ def view(qtbot, kymo_session):
     w.close()
 
 
-def shown_lag(view) -> float:
-    """The number the readout prints (ms)."""
-    m = re.search(r"events vs track: ([+-]\d+\.\d) ms", view.readout.text())
+def shown_lag(view) -> tuple[float, float]:
+    """The lag and its 1σ the readout prints (ms)."""
+    m = re.search(r"events vs track: ([+-]\d+\.\d) \u00b1 (\d+\.\d) ms", view.readout.text())
     assert m, view.readout.text()
-    return float(m.group(1))
+    return float(m.group(1)), float(m.group(2))
 
 
 def compute(session, kc, correction_us, line):
@@ -52,12 +54,13 @@ def test_shift_is_none_at_the_true_clock_and_the_offset_when_20ms_wrong(qtbot, v
     assert line is not None, "the default line is kept once shown"
     true_shift = view.shift_ms
     assert true_shift is not None and abs(true_shift) <= 2.0, true_shift
-    assert abs(shown_lag(view)) <= 2.0
+    assert abs(shown_lag(view)[0]) <= 2.0
     for error_us in (-20_000, 20_000):
         view.set_data(compute(kymo_session, kc, TRUE_OFFSET_US + error_us, view.line))
         assert view.line == line
         assert view.shift_ms == pytest.approx(error_us / 1e3, abs=2.5), (error_us, view.shift_ms)
-        assert shown_lag(view) == pytest.approx(view.shift_ms, abs=0.051)
+        assert shown_lag(view) == pytest.approx((view.shift_ms, view.shift_sigma_ms), abs=0.051)
+        assert abs(view.shift_ms - error_us / 1e3) <= 2 * view.shift_sigma_ms
         assert f"clock offset {-view.shift_ms:+.1f} ms" in view.readout.text()
         assert abs(view.shift_ms - true_shift) >= 17.0          # a measurable shift against the true clock
     # what is drawn is the data: the image, each object's track in its colour, the dashed track moved by its lag
@@ -114,11 +117,18 @@ def test_span_spin_writes_the_view_state_and_follows_it(qtbot, view, kymo_sessio
     assert d.image_rgb.shape[0] == 150 and d.t_first_ms == pytest.approx(-75.0)
 
 
-def test_not_measurable_readout(qtbot, view, kymo_session):
-    """A line far from every object: no track, no lag, and the readout says so."""
+def test_too_weak_readouts_say_why(qtbot, view, kymo_session, tmp_path_factory):
+    """A line far from every object, and the default line while the camera pauses: no lag, no dashed track, and
+    the readout says "too weak to read" and why."""
     d = KymographComputer().kymograph(KymographRequest(kymo_session.request(), (2.0, 2.0, 12.0, 2.0)))
     view.set_data(d)
-    assert view.shift_ms is None and "not measurable" in view.readout.text()
+    assert view.shift_ms is None and view.readout.text() == f"events vs track: too weak to read\n{conf.NO_TRACK}"
+    kymo_session.set_time(still_time_us(kymograph_scene(tmp_path_factory), *kymo_session.time_range))
+    d = compute(kymo_session, KymographComputer(), TRUE_OFFSET_US, None)
+    view.set_data(d)
+    assert d.tracks and view.shift_ms is None and view.shift_sigma_ms is None
+    assert view.readout.text() == f"events vs track: too weak to read\n{conf.NO_MOTION}"
+    assert all(np.size(view.fit_items[tr.name].getData()[0]) == 0 for tr in d.tracks)
 
 
 def test_drawing_a_line_asks_for_one_kymograph_on_release(view):
