@@ -9,6 +9,10 @@ Two guards make projection safe for labels:
 * the radial distortion polynomial folds back beyond some radius (its derivative turns negative),
   where far-off-axis points would land *inside* the image; points whose normalised radius is
   beyond :attr:`CameraModel.r_max` are rejected.
+
+Undistortion (pixels to rays) is Newton's method on the distortion model, kept inside ``r_max``
+(:mod:`evpose.core.data.undistort_newton`): it converges at every pixel that has a ray, where OpenCV's
+fixed-point iteration leaves holes at the image corners of strongly distorted or wide-angle cameras.
 """
 from __future__ import annotations
 
@@ -19,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from evpose.core.data.undistort_newton import R_SEARCH, NewtonUndistorter, radial_factor, split_coefficients
 from evpose.core.errors import InputError
 
 #: DAVIS346c calibration hard-coded in the E-POSE annotation scripts (OpenCV model, k1 k2 p1 p2 k3);
@@ -40,7 +45,9 @@ FOCAL_RANGE_PER_SIDE = (1e-3, 1e4)
 #: |cx|, |cy| at most this many sensor sides; |distortion coefficient| at most MAX_ABS_DIST.
 MAX_CENTRE_PER_SIDE = 100.0
 MAX_ABS_DIST = 1e6
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+#: Point sets at least this share of the sensor's pixels, all at integer pixel centres (events), are undistorted
+#: by a lookup in the per-pixel rays (computed once per camera) rather than by Newton's method point by point.
+RAY_CACHE_SHARE = 0.125
 
 
 class CameraError(InputError):
@@ -169,24 +176,35 @@ class CameraModel:
         """Largest normalised radius up to which radial distortion is monotonic (``inf`` if always).
 
         The radial factor is ``(1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)``;
-        ``r_d = r * factor`` must increase with ``r``. The search covers r up to 20 (87 degrees
-        off-axis); tangential and prism terms are small and not part of the bound.
+        ``r_d = r * factor`` must increase with ``r`` (and the denominator stay positive). The search covers
+        r up to 20 (87 degrees off-axis) on a grid of 1e-4, and the first radius where it fails is refined
+        by bisection to ~1e-15: ``r_max`` is the fold radius itself, not the grid point past it. Tangential
+        and prism terms are small and not part of the bound.
         """
         if not self.has_distortion:
             return float("inf")
-        k = np.zeros(8)
-        k[: min(8, len(self.dist))] = self.dist[:8]
-        k1, k2, p1, p2, k3, k4, k5, k6 = k
-        r = np.linspace(0.0, 20.0, 200_001)
-        r2 = r * r
-        num = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
-        den = 1 + k4 * r2 + k5 * r2**2 + k6 * r2**3
-        bad_den = den <= 1e-9
-        rd = r * num / np.where(bad_den, 1.0, den)
-        bad = bad_den[1:] | (np.diff(rd) <= 0)
-        if not bad.any():
+        d12, _ = split_coefficients(self.dist)
+
+        def monotonic(r):
+            radial, dradial, den = radial_factor(r * r, d12)
+            return (den > 1e-9) & (radial + 2.0 * r * r * dradial > 0)
+
+        r = np.linspace(0.0, R_SEARCH, 200_001)
+        good = monotonic(r)
+        if good.all():
             return float("inf")
-        return float(r[int(np.argmax(bad))])
+        i = int(np.argmax(~good))
+        lo, hi = float(r[max(i - 1, 0)]), float(r[i])
+        for _ in range(64):
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            lo, hi = (mid, hi) if monotonic(np.array(mid)) else (lo, mid)
+        return lo
+
+    @cached_property
+    def _undistorter(self) -> NewtonUndistorter:
+        return NewtonUndistorter(self.K, self.dist, self.r_max)
 
     # ------------------------------------------------------------------ projection
     def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -222,38 +240,48 @@ class CameraModel:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         if len(xy) == 0:
             return np.zeros((0, 2))
-        d = np.zeros(12)
-        d[:min(len(self.dist), 12)] = self.dist[:12]
-        if len(self.dist) <= 12 or not np.any(self.dist[12:]):
-            k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d
-            x, y = xy[:, 0], xy[:, 1]
-            r2 = x * x + y * y
-            r4 = r2 * r2
-            radial = (1.0 + ((k3 * r2 + k2) * r2 + k1) * r2) / (1.0 + ((k6 * r2 + k5) * r2 + k4) * r2)
-            a1, a2, a3 = 2.0 * x * y, r2 + 2.0 * x * x, r2 + 2.0 * y * y
-            xd = x * radial + p1 * a1 + p2 * a2 + s1 * r2 + s2 * r4
-            yd = y * radial + p1 * a3 + p2 * a1 + s3 * r2 + s4 * r4
-            return np.stack([self.K[0, 0] * xd + self.K[0, 2], self.K[1, 1] * yd + self.K[1, 2]], axis=1)
-        pts = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-        uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.dist)
-        return uv.reshape(-1, 2)
+        u, v = self._undistorter.distort_px(xy[:, 0], xy[:, 1])
+        return np.stack([u, v], axis=1)
 
     def undistort_points(self, uv: np.ndarray, K_new: np.ndarray | None = None) -> np.ndarray:
-        """Distorted pixels to normalised coordinates (or pixels of ``K_new`` if given).
+        """Distorted pixels to normalised coordinates (or pixels of ``K_new`` if given); NaN where a pixel has
+        no ray (beyond the image of the monotonic disk ``r <= r_max``).
 
-        Uses ``cv2.undistortPoints`` with iteration criteria (accurate to ~1e-12 px rather than
-        the 5 fixed iterations of the default, which leave errors of several thousandths of a pixel
-        with DAVIS346 distortion).
+        Newton's method on the distortion model (:class:`~evpose.core.data.undistort_newton.NewtonUndistorter`),
+        accurate to ~1e-13 in normalised units. Large sets of integer pixel centres (events) are looked up in
+        :meth:`pixel_rays`, which holds the same values.
+
+        Parameters
+        ----------
+        uv : (N, 2) float
+            Distorted pixel coordinates.
+        K_new : (3, 3) array, optional
+            Camera matrix of the output pixels (applied to ``(x, y, 1)`` as ``cv2.undistortPoints``'s ``P``).
         """
-        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         if len(uv) == 0:
             return np.zeros((0, 2))
-        P = None if K_new is None else np.asarray(K_new, dtype=np.float64)
-        try:
-            out = cv2.undistortPoints(uv, self.K, self.dist, R=None, P=P, criteria=_UNDISTORT_CRITERIA)
-        except (TypeError, cv2.error):  # OpenCV 4.x spells the iterative variant differently
-            out = cv2.undistortPointsIter(uv, self.K, self.dist, None, P, _UNDISTORT_CRITERIA)
-        return out.reshape(-1, 2)
+        xy = self._cached_rays(uv)
+        if xy is None:
+            xy = self._undistorter.rays(uv)[0]
+        if K_new is None:
+            return xy
+        P = np.asarray(K_new, dtype=np.float64)
+        h = xy @ P[:, :2].T + P[:, 2]
+        return h[:, :2] / h[:, 2:3]
+
+    def _cached_rays(self, uv: np.ndarray) -> np.ndarray | None:
+        """Rays of ``uv`` from :meth:`pixel_rays` when they are integer pixel centres on the sensor and either
+        the rays are computed already or ``uv`` is at least :data:`RAY_CACHE_SHARE` of the sensor; else None."""
+        if "_pixel_rays" not in self.__dict__ and len(uv) < RAY_CACHE_SHARE * self.width * self.height:
+            return None
+        if not np.isfinite(uv).all():
+            return None
+        iu, iv = uv[:, 0].astype(np.int64), uv[:, 1].astype(np.int64)
+        if not (np.array_equal(iu, uv[:, 0]) and np.array_equal(iv, uv[:, 1])
+                and iu.min() >= 0 and iv.min() >= 0 and iu.max() < self.width and iv.max() < self.height):
+            return None
+        return self.pixel_rays()[0][iv, iu]
 
     def in_image(self, uv: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         """True where pixel coordinates fall on the sensor (pixel squares ``[-0.5, W-0.5)``)."""
@@ -266,11 +294,7 @@ class CameraModel:
     @cached_property
     def _pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
         vv, uu = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
-        uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
-        xy = self.undistort_points(uv)
-        back = self.distort_normalized(xy)
-        ok = (np.abs(back - uv).max(axis=1) < 1e-4) & (np.einsum("ij,ij->i", xy, xy) <= self.r_max**2)
-        xy[~ok] = np.nan
+        xy, ok = self._undistorter.rays(np.stack([uu.ravel(), vv.ravel()], axis=1))
         xy = xy.reshape(self.height, self.width, 2)
         xy.setflags(write=False)
         ok = ok.reshape(self.height, self.width)
@@ -280,20 +304,30 @@ class CameraModel:
     def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
         """Normalised ray ``(x, y)`` (ray direction ``(x, y, 1)``) through every pixel centre.
 
-        Computed once per camera. Returns ``(xy (H, W, 2) float64, valid (H, W) bool)``; a
-        pixel is invalid when undistortion does not converge or lands beyond :attr:`r_max`.
-        The arrays are read-only.
+        Computed once per camera (Newton's method, ~0.1 s for a DAVIS346). Returns ``(xy (H, W, 2) float64,
+        valid (H, W) bool)``; a pixel is valid exactly when it has a ray: some ``(x, y)`` with radius within
+        :attr:`r_max` distorts onto its centre (to 1e-6 px). Invalid pixels hold NaN. The arrays are read-only.
         """
         return self._pixel_rays
 
     def undistortion_maps(self, K_new: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``cv2.remap`` maps from the undistorted image (intrinsics ``K_new``, default ``K``) to
-        this camera's distorted image; cached per ``K_new``."""
+        """``cv2.remap`` maps (two (H, W) float32, pixels) from the undistorted image (intrinsics ``K_new``,
+        default ``K``) to this camera's distorted image; cached per ``K_new``.
+
+        The same maps as ``cv2.initUndistortRectifyMap`` (each output pixel's ray distorted forward), except
+        that rays beyond :attr:`r_max` map to -1 (outside: ``remap`` fills them with the border value) instead
+        of onto the folded-back part of the image."""
         K_new = self.K if K_new is None else np.asarray(K_new, dtype=np.float64)
         key = K_new.tobytes()
         if key not in self._maps:
-            self._maps[key] = cv2.initUndistortRectifyMap(
-                self.K, self.dist, None, K_new, (self.width, self.height), cv2.CV_32FC1)
+            vv, uu = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+            h = np.stack([uu.ravel(), vv.ravel(), np.ones(uu.size)], axis=1) @ np.linalg.inv(K_new).T
+            xy = h[:, :2] / h[:, 2:3]
+            ok = np.einsum("ij,ij->i", xy, xy) <= self.r_max ** 2
+            uv = np.full_like(xy, -1.0)
+            uv[ok] = self.distort_normalized(xy[ok])
+            uv = uv.astype(np.float32).reshape(self.height, self.width, 2)
+            self._maps[key] = (np.ascontiguousarray(uv[..., 0]), np.ascontiguousarray(uv[..., 1]))
         return self._maps[key]
 
     def undistort_image(self, image: np.ndarray, K_new: np.ndarray | None = None,
