@@ -115,6 +115,10 @@ def evaluate(folder: Path) -> dict:
             row["joint"] = _clock_row(edges.offset_us, edges.offset_std_us,
                                       edges.skew_ppm if edges.skew_estimated else None, edges.skew_std_ppm,
                                       true_o, true_s, edges.accepted, edges.reason)
+            if not edges.skew_estimated and edges.skew_std_ppm is not None:     # "not pinned": does its sigma cover
+                row["joint"].update(skew_kept_err_ppm=float(edges.skew_ppm - true_s),   # the skew it kept?
+                                    skew_unpinned_std_ppm=edges.skew_std_ppm,
+                                    r_skew_unpinned=_ratio(edges.skew_ppm - true_s, edges.skew_std_ppm))
             row["joint"]["runtime_s"] = edges.runtime_s
             row["objects"] = {}
             for name in scene.object_names:
@@ -178,6 +182,8 @@ def report(rows: list[dict], family: str) -> str:
         skew = "—"
         if jo.get("skew_err_ppm") is not None:
             skew = f"{jo['skew_err_ppm']:+.1f} ± {_num(jo['skew_std_ppm'])}"
+        elif jo.get("skew_kept_err_ppm") is not None:
+            skew = f"(not pinned) {jo['skew_kept_err_ppm']:+.0f} ± {_num(jo['skew_unpinned_std_ppm'])}"
         objs = [o for o in (r.get("objects") or {}).values()]
         poses = "—" if not objs else (f"{np.median([o['mm'] for o in objs]):.2f}/{np.median([o['deg'] for o in objs]):.2f}, "
                                       f"{max(o['mm'] for o in objs):.2f}/{max(o['deg'] for o in objs):.2f}")
@@ -186,7 +192,9 @@ def report(rows: list[dict], family: str) -> str:
     out += ["", "calibration of the reported sigma (|error| / sigma):"]
     out.append(f"  rate offset      {_cov([r['rate']['r'] for r in rows if r['rate']['err_us'] is not None])}")
     out.append(f"  joint offset     {_cov([r['joint']['r'] for r in rows if r.get('joint') and r['joint']['ok']])}")
-    out.append(f"  joint skew       {_cov([r['joint'].get('r_skew') for r in rows if r.get('joint') and 'r_skew' in r['joint']])}")
+    out.append(f"  joint skew       {_cov([r['joint']['r_skew'] for r in rows if r.get('joint') and r['joint']['ok'] and 'r_skew' in r['joint']])}")
+    out.append("  skew not pinned  " + _cov([r["joint"]["r_skew_unpinned"] for r in rows if r.get("joint")
+                                             and r["joint"]["ok"] and "r_skew_unpinned" in r["joint"]]))
     objs = [o for r in rows for o in (r.get("objects") or {}).values() if "r_mm" in o]
     out.append(f"  pose translation {_cov([o['r_mm'] for o in objs])}")
     out.append(f"  pose rotation    {_cov([o['r_deg'] for o in objs])}")

@@ -12,7 +12,8 @@ objective's own curvature, infinite standard errors along directions it does not
 the windows' score sums ``sum_{e in w} K'(s_e) J_e``): events of one window share its pose errors, so
 they are not independent, and the spread between windows is what the data say about the estimate's noise. It is
 the linearised jackknife over windows; it grows when windows disagree (a model error that differs between
-viewpoints), not when all windows are shifted alike.
+viewpoints), not when all windows are shifted alike. Estimated from few clusters (4 motion segments) it is itself
+uncertain: it is widened by the Student-t factor of :func:`small_sample_factor`.
 """
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ import math
 
 import numpy as np
 
-__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix"]
+__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix",
+           "small_sample_factor"]
 
 _E05 = math.exp(0.5)
 
@@ -192,6 +194,7 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
     if len(ids) < 3:
         cov[np.ix_(free, free)] = np.inf
         return cov
+    inflate = small_sample_factor(len(ids))
     G = np.zeros((len(ids), n))
     psi = J * dk[:, None]                                  # per-event score contributions
     for i, r in enumerate(rows):
@@ -207,6 +210,7 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
         if len(f) == 0:
             break
         C, flat = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(ids), _complement(held, f, free))
+        C = C * inflate
         if not flat.any():
             cov[np.ix_(f, f)] = C
             break
@@ -223,6 +227,18 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
             cov[:, cols] = np.inf
             free[cols] = False
     return cov
+
+
+def small_sample_factor(n_clusters: int) -> float:
+    """Variance factor for a covariance estimated from ``n_clusters`` cluster sums: ``(t_{0.975, n-1} /
+    z_{0.975})^2``, so that +-2 sigma keeps ~95 % coverage when the spread comes from few groups (4 motion segments:
+    x2.6 in variance, sigma x1.6; 40 windows: x1.05). Without it, a sigma estimated from 4 moves is 2 sigma off in
+    ~14 % of scenes instead of 5 %."""
+    from scipy.stats import norm, t
+
+    if n_clusters < 2:
+        return math.inf
+    return float((t.ppf(0.975, n_clusters - 1) / norm.ppf(0.975)) ** 2)
 
 
 def _complement(held: np.ndarray, f: np.ndarray, free: np.ndarray) -> np.ndarray | None:

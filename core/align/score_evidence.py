@@ -96,8 +96,14 @@ def view_rect(camera, n: int = 16) -> tuple[float, float, float, float]:
              np.stack([s_u, np.full(n, -0.5)], 1), np.stack([s_u, np.full(n, H - 0.5)], 1)]
     K = camera.K
     ideal = [camera.undistort_points(b) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]] for b in sides]
-    return (float(ideal[0][:, 0].max()), float(ideal[2][:, 1].max()),
-            float(ideal[1][:, 0].min()), float(ideal[3][:, 1].min()))
+    # border pixels without a ray (a lens folding back within the sensor: NaN) bound nothing; a side with none
+    # left is bounded by the sensor's own edge
+    bound = [(np.nanmax, 0, -0.5), (np.nanmax, 1, -0.5), (np.nanmin, 0, W - 0.5), (np.nanmin, 1, H - 0.5)]
+    out = []
+    for side, (pick, axis, edge) in zip((ideal[0], ideal[2], ideal[1], ideal[3]), bound):
+        v = side[:, axis]
+        out.append(float(pick(v)) if np.isfinite(v).any() else float(edge))
+    return tuple(out)
 
 
 def image_motion_px_s(camera, pts: np.ndarray, T_co_start: np.ndarray, T_co_end: np.ndarray,

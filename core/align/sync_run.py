@@ -91,9 +91,8 @@ def run_sync(scene, opts: SyncOptions, *, progress=None, edge_progress=None, can
     return run
 
 
-#: The edge stage's clock may move at least this far from the rate estimate (µs): the rate's standard error counts
-#: the Poisson noise of the rate only, while its model error is ~0.4-1 ms at 0.5-1 m/s and 5-10 ms on slow moves
-#: (docs/sync.md), so 3 of its standard errors alone would refuse right answers.
+#: The edge stage's clock may move at least this far from the rate estimate (µs), whatever the rate's standard
+#: error says (inert while that carries its 4.75 ms model-error floor: 4 sigma are >= 19 ms).
 EDGE_MIN_RANGE_US = 5000.0
 
 

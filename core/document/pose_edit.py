@@ -103,10 +103,13 @@ def image_plane_shift(camera, centre_cam: np.ndarray, uv_from, uv_to) -> np.ndar
     under pixel ``uv_from`` to under pixel ``uv_to``: a move parallel to the image, at the object's depth.
 
     Pixels are of the raw (distorted) image, as on screen; they are undistorted to rays first, so the
-    shift follows the cursor also where the lens bends the image."""
+    shift follows the cursor also where the lens bends the image. A pixel the lens gives no ray (beyond the
+    distortion's turning radius) moves nothing: zeros, never NaN into a pose."""
     z = float(np.asarray(centre_cam, dtype=np.float64)[2])
     xy = camera.undistort_points(np.array([uv_from, uv_to], dtype=np.float64))
     d = (xy[1] - xy[0]) * z
+    if not np.all(np.isfinite(d)):
+        return np.zeros(3)
     return np.array([d[0], d[1], 0.0])
 
 

@@ -476,5 +476,5 @@ def test_edge_stage_search_range_follows_the_rate_uncertainty(rendered):
         res = sync_scene(scene)
     unreliable = SyncResult(None, None, 0.0, False, "static", np.zeros(0), np.zeros(0))
     assert sync_edges.sync_edge_half_range_us(res) == pytest.approx(
-        np.clip(3 * res.offset_std_us, sync_edges.SYNC_EDGE_MIN_RANGE_US, sync_edges.SYNC_EDGE_MAX_RANGE_US))
+        np.clip(4 * res.offset_std_us, sync_edges.SYNC_EDGE_MIN_RANGE_US, sync_edges.SYNC_EDGE_MAX_RANGE_US))
     assert sync_edges.sync_edge_half_range_us(unreliable) == sync_edges.SYNC_EDGE_MAX_RANGE_US

@@ -229,3 +229,19 @@ def test_newton_never_leaves_the_monotonic_disk():
     assert r0 < x[0] <= 0.5 * (r0 + cam.r_max) + 1e-15 and y[0] == 0.0
     xy, ok = und.rays(np.stack([target_u, [CY]], axis=1))
     assert not ok[0] and np.isnan(xy).all()
+
+
+def test_pixels_without_a_ray_move_no_pose_and_bound_no_view():
+    """Where the fold-back lens gives a corner pixel no ray (NaN), a drag from it moves nothing (never a NaN into
+    a pose) and the inscribed view rectangle is bounded by the pixels that have one."""
+    from evpose.core.align.score_evidence import view_rect
+    from evpose.core.document.pose_edit import image_plane_shift
+
+    cam = CASES["fold-back k1=-0.6"]()
+    corner = np.array([0.0, 0.0])
+    assert not np.all(np.isfinite(cam.undistort_points(corner[None])))       # the corner has no ray
+    assert np.array_equal(image_plane_shift(cam, np.array([0, 0, 0.5]), corner, [CX, CY]), np.zeros(3))
+    moved = image_plane_shift(cam, np.array([0, 0, 0.5]), [CX, CY], [CX + 10, CY])
+    assert moved[0] > 0 and np.all(np.isfinite(moved))
+    u0, v0, u1, v1 = view_rect(cam)
+    assert all(np.isfinite([u0, v0, u1, v1])) and u0 < CX < u1 and v0 < CY < v1
