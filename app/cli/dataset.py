@@ -1,4 +1,4 @@
-"""``evpose dataset info|import|sync|score|report|export``: the single-scene commands over every scene of a
+"""``evpose dataset info|import|sync|refine|score|report|export``: the single-scene commands over every scene of a
 dataset (:mod:`evpose.core.dataset`), run on Dask.
 
 CLUSTER: ``--workers N`` starts a local Dask cluster of N worker processes (default: the machine's
@@ -104,6 +104,30 @@ def cmd_sync(args) -> int:
         ("reliable", lambda d: "yes" if d.get("reliable") else "no"), ("offset_us", offset),
         ("sigma_us", lambda d: "-" if d.get("offset_std_us") is None else f"{d['offset_std_us']:.0f}"),
         ("edges_offset_us", edges), ("applied", lambda d: "yes" if d.get("applied") else "no")]))
+
+
+def _changes_cell(d) -> str:
+    changes = d.get("changes") or []
+    return "; ".join(c["text"] for c in changes) if changes else "-"
+
+
+@command("dataset refine")
+def cmd_refine(args) -> int:
+    from evpose.app.cli.estimates import check_windows
+    from evpose.core.align.refine_run import JointRunOptions
+    from evpose.core.dataset.tasks import refine_task
+
+    check_windows(args)
+    opts = JointRunOptions(clock=not args.no_clock, hand_eye=args.hand_eye, windows=args.windows, apply=args.apply)
+    result = _map(args, _open_dataset(args), refine_task, opts, label="refine")
+
+    def verdict(d):
+        if not d.get("accepted"):
+            return "kept start"
+        return ("applied" if d.get("applied") else "would apply") if d.get("changes") else "no change"
+
+    return _finish(args, result, _table(result, [
+        ("fit", verdict), ("changes (+- sigma)", _changes_cell)]))
 
 
 @command("dataset score")
@@ -221,13 +245,31 @@ def add_dataset_parser(subparsers) -> None:
     p = sub.add_parser("sync", help="clock estimate of every scene (evpose sync)")
     p.add_argument("dataset", metavar="DATASET")
     p.add_argument("--edges", action="store_true", help="then refine from event/edge alignment (see evpose sync)")
-    p.add_argument("--apply", action="store_true", help="store each reliable estimate in the scene's corrections.json")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--dry-run", action="store_true", help="print what --apply would store (the default)")
+    g.add_argument("--apply", action="store_true", help="store each reliable estimate beyond its sigma of the clock in "
+                                                        "effect in the scene's corrections.json (one undo step)")
     p.add_argument("--range-ms", type=float, default=500.0, help="search range around the clock in effect (ms)")
     p.add_argument("--bin-us", type=int, default=1000, help="event-rate bin (multiple of 1000 us)")
     p.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
     p.set_defaults(baseline=False, curve=False)
     _cluster_args(p)
     p.set_defaults(func=cmd_sync)
+
+    p = sub.add_parser("refine", help="clock and poses (and hand-eye) of every scene fitted from edges (evpose "
+                                      "refine --joint): a dry run by default, --apply stores them")
+    p.add_argument("dataset", metavar="DATASET")
+    p.add_argument("--joint", action="store_true", help="the joint fit of clock and poses (the only mode; accepted "
+                                                       "for symmetry with evpose refine)")
+    p.add_argument("--hand-eye", action="store_true", help="fit a hand-eye correction too")
+    p.add_argument("--no-clock", action="store_true", help="keep each scene's clock")
+    p.add_argument("--windows", type=int, default=24, help="event windows of each fit")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--dry-run", action="store_true", help="print what --apply would store (the default)")
+    g.add_argument("--apply", action="store_true", help="store each scene's changes beyond their sigma as one undo "
+                                                        "step in its corrections.json")
+    _cluster_args(p)
+    p.set_defaults(func=cmd_refine)
 
     p = sub.add_parser("score", help="alignment scores of every scene (evpose score)")
     p.add_argument("dataset", metavar="DATASET")

@@ -9,7 +9,7 @@ import math
 
 from evpose.app.cli.options import check_int
 
-__all__ = ["MAX_WINDOWS_OPT", "check_windows", "edges_line"]
+__all__ = ["MAX_WINDOWS_OPT", "change_lines", "check_windows", "edges_line", "joint_lines"]
 
 #: ``--windows`` of ``sync --edges`` and ``refine``: each window costs a render per iteration.
 MAX_WINDOWS_OPT = 10_000
@@ -60,3 +60,15 @@ def joint_lines(r, label: str = "edges") -> list[str]:
         lines.append(f"  hand-eye: dt {r.hand_eye_dt_mm:.2f} mm{pm(r.hand_eye_std_mm, 'mm', 2)}, dR "
                      f"{r.hand_eye_dR_deg:.3f} deg{pm(r.hand_eye_std_deg, 'deg', 3)}")
     return lines + notes
+
+
+def change_lines(data: dict, applied: bool) -> list[str]:
+    """What ``--apply`` stores (``applied``) or would store (a dry run) of a document with ``changes`` and ``kept``
+    (:func:`evpose.core.align.apply.plan_joint_result`), one line each."""
+    changes = data.get("changes") or []
+    head = "applied" if applied else "--apply would store"
+    if not changes:
+        return [f"{'nothing applied' if applied else '--apply would store nothing'}"
+                + (f" ({'; '.join(data.get('kept') or [])})" if data.get("kept") else "")]
+    return [f"{head}: {c['text']}" for c in changes] + [f"kept: {k}" for k in data.get("kept") or []]
+

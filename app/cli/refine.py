@@ -75,23 +75,22 @@ def _refine(scene, args, out: dict, lines: list[str]) -> bool:
 
 
 def _refine_joint(scene, args, out: dict, lines: list[str]) -> bool:
-    """``--joint``: one fit of clock, poses (and hand-eye); fills ``out`` and ``lines``; applies as one undo step
-    with ``--apply``."""
-    from evpose.app.cli.estimates import joint_lines
-    from evpose.core.align.apply import apply_joint_result
-    from evpose.core.align.joint_fit import refine_joint
-    from evpose.core.align.joint_result import JointParams
-    from evpose.core.document.history import History
+    """``--joint``: one fit of clock, poses (and hand-eye) (:func:`~evpose.core.align.refine_run.run_refine_joint`);
+    fills ``out`` and ``lines``; applies as one undo step with ``--apply`` and saves."""
+    from evpose.app.cli.estimates import change_lines, joint_lines
+    from evpose.core.align.refine_run import JointRunOptions, run_refine_joint
 
     names = object_names(scene, args) if args.object else None
-    params = JointParams(clock=not args.no_clock, objects=None if names is None else tuple(names),
-                         hand_eye=args.hand_eye, n_windows=args.windows or JointParams.n_windows)
+    opts = JointRunOptions(clock=not args.no_clock, objects=None if names is None else tuple(names),
+                           hand_eye=args.hand_eye, windows=args.windows or JointRunOptions.windows, apply=args.apply)
     with Progress("refine jointly", not args.quiet) as progress:
-        r = refine_joint(scene, params=params, progress=progress)
-    out.update(r.to_json())
-    lines.extend(joint_lines(r, "joint fit"))
-    return bool(args.apply) and apply_joint_result(History(scene.corrections), scene, r,
-                                                   "refine clock and poses from edges")
+        run = run_refine_joint(scene, opts, progress=progress)
+    out.update(run.data)
+    lines.extend(joint_lines(run.result, "joint fit"))
+    lines.extend(change_lines(run.data, args.apply))
+    if run.saved_line:
+        lines.append(run.saved_line)
+    return False            # saved already
 
 
 @command("refine")
@@ -110,8 +109,8 @@ def cmd_refine(args) -> int:
     lines: list[str] = []
     try:
         changed = (_refine_joint if args.joint else _refine)(scene, args, out, lines)
-        out["applied"] = bool(args.apply and changed)
-        if out["applied"]:
+        out["applied"] = bool(out.get("applied")) or bool(args.apply and changed)
+        if changed and args.apply:
             from evpose.core.align.apply import save_applied
 
             lines.append(save_applied(scene, out))

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from evpose.app.cli.errors import CliError, command
-from evpose.app.cli.estimates import check_windows, joint_lines
+from evpose.app.cli.estimates import change_lines, check_windows, joint_lines
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 
@@ -51,6 +51,8 @@ def sync_text(res, corr, edges, data: dict, saved_line: str) -> str:
         b = data["baseline"]
         text += (f"\nbaseline (E-POSE minima matching): offset {b['offset_us']} us"
                  if b["reliable"] else f"\nbaseline: no estimate ({b['reason']})")
+    if data.get("changes") is not None:
+        text += "\n" + "\n".join(change_lines(data, bool(data.get("applied"))))
     if saved_line:
         text += "\n" + saved_line
     return text

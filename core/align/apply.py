@@ -12,13 +12,15 @@ nothing --  for the CLI's ``--apply`` (the app goes through
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
+from typing import Callable
 
 from evpose.core.align.refine_result import RefineResult
 from evpose.core.align.sync_result import SyncResult
 from evpose.core.document.estimates import apply_clock_estimate, clock_correction_for
 
-__all__ = ["APPLY_SIGMAS", "apply_joint_result", "apply_offset_result", "apply_sync", "clock_correction", "clock_differs",
-           "save_applied"]
+__all__ = ["APPLY_SIGMAS", "PlannedChange", "apply_joint_result", "apply_offset_result", "apply_sync", "clock_correction",
+           "clock_differs", "plan_joint_result", "plan_sync", "save_applied", "store_changes"]
 
 #: An estimate replaces what is in effect only where it differs by more than this many of its standard errors.
 APPLY_SIGMAS = 2.0
@@ -52,14 +54,8 @@ def clock_correction(scene, result: SyncResult) -> tuple[int, float] | None:
 
 def apply_sync(history, scene, result: SyncResult, text: str = "clock sync") -> bool:
     """Apply a reliable result that differs from the clock in effect (:func:`clock_differs`) through ``history``
-    as one undo step; returns whether applied."""
-    if result.offset_us is None or not result.reliable:
-        return False
-    if not clock_differs(scene, result.offset_us, result.skew_ppm, result.offset_std_us,
-                         getattr(result, "skew_std_ppm", None)):
-        return False
-    apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
-    return True
+    as one undo step (:func:`plan_sync`); returns whether applied."""
+    return store_changes(history, plan_sync(scene, result), text)
 
 
 def apply_offset_result(history, scene, result: RefineResult, text: str = "clock from edges") -> bool:
@@ -74,45 +70,121 @@ def apply_offset_result(history, scene, result: RefineResult, text: str = "clock
     return True
 
 
+@dataclass
+class PlannedChange:
+    """One part of an estimate that ``--apply`` stores (or a dry run would): ``part`` (``"clock"``, ``"object"``,
+    ``"hand-eye"``), ``name`` (the object's), a one-line ``text`` with the change and its sigma, ``values`` (JSON
+    numbers: the change and its standard errors, units in the keys) and ``store(history, text)`` that stores it."""
+
+    part: str
+    name: str
+    text: str
+    values: dict
+    store: Callable = field(repr=False, default=None)
+
+    def to_json(self) -> dict:
+        return {"part": self.part, "name": self.name, "text": self.text, **self.values}
+
+
+def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) -> tuple[list, list]:
+    """What :func:`apply_joint_result` would store of an accepted joint refinement, without storing anything:
+    ``(changes, kept)`` -- the :class:`PlannedChange` of each part that differs from what is in effect by more
+    than :data:`APPLY_SIGMAS` of its standard errors, and one line per part left as it is and why. Nothing for a
+    fit that was not accepted."""
+    from evpose.core.document.estimates import apply_pose_estimate
+
+    changes, kept = [], []
+    if not result.accepted:
+        return changes, [f"not accepted: {result.reason}"]
+    p = result.params
+    if clock and p.clock:
+        skew = result.skew_ppm if result.skew_estimated else None
+        now = scene.clock
+        if clock_differs(scene, result.offset_us, skew, result.offset_std_us, result.skew_std_ppm):
+            d_us = float(result.offset_us - now.offset_us)
+            text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {result.offset_std_us / 1e3:.3f})"
+            vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(result.offset_us),
+                    "offset_change_us": d_us, "offset_std_us": result.offset_std_us}
+            if skew is not None:
+                text += f", skew {now.skew_ppm:+.1f} -> {skew:+.1f} ppm (+- {result.skew_std_ppm:.1f})"
+                vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(skew),
+                            skew_std_ppm=result.skew_std_ppm)
+
+            def store_clock(history, text_, r=result):
+                # the total clock the fit used: its own skew, or the start's it kept (for sync, the rate estimate's)
+                apply_clock_estimate(history, scene, r.offset_us, r.skew_ppm, text_)
+            changes.append(PlannedChange("clock", "", text, vals, store_clock))
+        else:
+            kept.append(f"clock: within {APPLY_SIGMAS:g} sigma of the clock in effect")
+    if not poses:
+        return changes, kept
+    for name, o in result.objects.items():
+        if _beyond(o.dt_mm, o.std_mm) or _beyond(o.dR_deg, o.std_deg):
+            def store_pose(history, text_, name=name, o=o):
+                apply_pose_estimate(history, name, o.dT_base, text_)
+            changes.append(PlannedChange(
+                "object", name, f"{name}: {o.dt_mm:.2f} mm (+- {o.std_mm:.2f}), {o.dR_deg:.2f} deg (+- {o.std_deg:.2f})",
+                {"dt_mm": o.dt_mm, "std_mm": o.std_mm, "dR_deg": o.dR_deg, "std_deg": o.std_deg}, store_pose))
+        else:
+            kept.append(f"{name}: its change ({o.dt_mm:.2f} mm, {o.dR_deg:.2f} deg) is within {APPLY_SIGMAS:g} sigma")
+    if p.hand_eye and result.hand_eye_dT_cam is not None:
+        r = result
+        if _beyond(r.hand_eye_dt_mm, r.hand_eye_std_mm) or _beyond(r.hand_eye_dR_deg, r.hand_eye_std_deg):
+            def store_hand_eye(history, text_, H=r.hand_eye_dT_cam):
+                history.set(("hand_eye",), H, text=text_)
+            changes.append(PlannedChange(
+                "hand-eye", "", f"hand-eye: {r.hand_eye_dt_mm:.2f} mm (+- {r.hand_eye_std_mm:.2f}), "
+                                f"{r.hand_eye_dR_deg:.3f} deg (+- {r.hand_eye_std_deg:.3f})",
+                {"dt_mm": r.hand_eye_dt_mm, "std_mm": r.hand_eye_std_mm, "dR_deg": r.hand_eye_dR_deg,
+                 "std_deg": r.hand_eye_std_deg}, store_hand_eye))
+        else:
+            kept.append(f"hand-eye: its change is within {APPLY_SIGMAS:g} sigma")
+    return changes, kept
+
+
 def apply_joint_result(history, scene, result, text: str = "refine clock and poses from edges", *,
                        clock: bool = True, poses: bool = True, kept: list | None = None) -> bool:
     """Store an accepted joint refinement (:class:`~evpose.core.align.joint_result.JointResult`) through
     ``history`` as one undo step: its clock (when fitted, and ``clock``), every fitted object's pose correction
     and the hand-eye correction (when fitted; both with ``poses``) -- each only where it differs from what is in
-    effect by more than :data:`APPLY_SIGMAS` of its standard errors; ``kept`` (a list) receives one line per part
-    left as it was and why. Returns whether anything was applied."""
-    from evpose.core.document.estimates import apply_pose_estimate
+    effect by more than :data:`APPLY_SIGMAS` of its standard errors (:func:`plan_joint_result`); ``kept`` (a list)
+    receives one line per part left as it was and why. Returns whether anything was applied."""
+    changes, why = plan_joint_result(scene, result, clock=clock, poses=poses)
+    if kept is not None and result.accepted:
+        kept.extend(why)
+    return store_changes(history, changes, text)
 
-    if not result.accepted:
+
+def store_changes(history, changes: list, text: str) -> bool:
+    """Store planned changes (:func:`plan_joint_result`) through ``history`` as one undo step."""
+    if not changes:
         return False
-    p = result.params
-    kept = [] if kept is None else kept
-    changed = False
     with history.group(text):
-        if clock and p.clock:
-            skew = result.skew_ppm if result.skew_estimated else None
-            if clock_differs(scene, result.offset_us, skew, result.offset_std_us, result.skew_std_ppm):
-                # the total clock the fit used: its own skew, or the start's it kept (for sync, the rate estimate's)
-                apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
-                changed = True
-            else:
-                kept.append(f"clock: within {APPLY_SIGMAS:g} sigma of the clock in effect")
-        if poses:
-            for name, o in result.objects.items():
-                if _beyond(o.dt_mm, o.std_mm) or _beyond(o.dR_deg, o.std_deg):
-                    apply_pose_estimate(history, name, o.dT_base, text)
-                    changed = True
-                else:
-                    kept.append(f"{name}: its change ({o.dt_mm:.2f} mm, {o.dR_deg:.2f} deg) is within "
-                                f"{APPLY_SIGMAS:g} sigma")
-            if p.hand_eye and result.hand_eye_dT_cam is not None:
-                if (_beyond(result.hand_eye_dt_mm, result.hand_eye_std_mm)
-                        or _beyond(result.hand_eye_dR_deg, result.hand_eye_std_deg)):
-                    history.set(("hand_eye",), result.hand_eye_dT_cam, text=text)
-                    changed = True
-                else:
-                    kept.append(f"hand-eye: its change is within {APPLY_SIGMAS:g} sigma")
-    return changed
+        for c in changes:
+            c.store(history, text)
+    return True
+
+
+def plan_sync(scene, result: SyncResult) -> list:
+    """What :func:`apply_sync` would store of a rate estimate: the clock when reliable and beyond
+    :data:`APPLY_SIGMAS` of its standard errors from the clock in effect (empty list otherwise)."""
+    if result.offset_us is None or not result.reliable:
+        return []
+    skew_std = getattr(result, "skew_std_ppm", None)
+    if not clock_differs(scene, result.offset_us, result.skew_ppm, result.offset_std_us, skew_std):
+        return []
+    now = scene.clock
+    d_us = float(result.offset_us - now.offset_us)
+    vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(result.offset_us), "offset_change_us": d_us,
+            "offset_std_us": result.offset_std_us}
+    text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {result.offset_std_us / 1e3:.3f})"
+    if result.skew_ppm is not None:
+        vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(result.skew_ppm), skew_std_ppm=skew_std)
+        text += f", skew {now.skew_ppm:+.1f} -> {result.skew_ppm:+.1f} ppm"
+
+    def store(history, text_):
+        apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text_)
+    return [PlannedChange("clock", "", text, vals, store)]
 
 
 def save_applied(scene, data: dict) -> str:

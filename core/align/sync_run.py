@@ -15,7 +15,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 
-from evpose.core.align.apply import apply_joint_result, apply_sync, save_applied
+from evpose.core.align.apply import APPLY_SIGMAS, plan_joint_result, plan_sync, save_applied, store_changes
 from evpose.core.document.estimates import clock_correction_for
 
 __all__ = ["EDGE_MIN_RANGE_US", "MOUNTING_MIN_OBJECTS", "MOUNTING_SIGMAS", "MOUNTING_TRIGGER_STD_US", "SyncOptions",
@@ -75,13 +75,21 @@ def run_sync(scene, opts: SyncOptions, *, progress=None, edge_progress=None, can
     corr = run.correction = (None if data["offset_us"] is None else
                              clock_correction_for(scene, data["offset_us"], data["skew_ppm"]))
     data["correction"] = None if corr is None else {"offset_us": corr[0], "skew_ppm": corr[1]}
+    edges = run.edges if run.edges is not None and run.edges.accepted else None
+    if not res.reliable:
+        changes, kept = [], [f"no reliable estimate: {res.reason}"]
+    elif edges is not None:
+        changes, kept = plan_joint_result(scene, edges, poses=False)
+    else:
+        changes = plan_sync(scene, res)
+        kept = [] if changes else [f"clock: within {APPLY_SIGMAS:g} sigma of the clock in effect"]
+    data["changes"] = [c.to_json() for c in changes]        # what --apply stores (or stored): the dry run's diff
+    data["kept"] = kept
     applied = False
     if opts.apply:
         if res.reliable:
-            history = History(scene.corrections)
-            edges = run.edges if run.edges is not None and run.edges.accepted else None
-            applied = (apply_joint_result(history, scene, edges, "clock sync (rate, then edges)", poses=False)
-                       if edges is not None else apply_sync(history, scene, res))
+            text = "clock sync (rate, then edges)" if edges is not None else "clock sync"
+            applied = store_changes(History(scene.corrections), changes, text)
             if applied:
                 run.saved_line = save_applied(scene, data)
         else:

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 
 from evpose.core.data.json_values import plain
 
-__all__ = ["info_task", "sync_task", "score_task", "review_progress", "triage_task", "TRIAGE_WINDOW_US"]
+__all__ = ["info_task", "sync_task", "refine_task", "score_task", "review_progress", "triage_task", "TRIAGE_WINDOW_US"]
 
 #: Window length of the triage scores and review progress (the export default).
 TRIAGE_WINDOW_US = 10_000
@@ -42,6 +42,16 @@ def sync_task(path: str, defaults, opts) -> dict:
 
     with _scene(path, defaults) as scene:
         return plain(run_sync(scene, opts).data)
+
+
+def refine_task(path: str, defaults, opts) -> dict:
+    """``evpose refine SCENE --joint --json`` with the options ``opts``
+    (:class:`~evpose.core.align.refine_run.JointRunOptions`): the fit, ``changes`` (what ``--apply`` stores or would
+    store, each beyond its sigma of what is in effect), ``kept``, ``applied``."""
+    from evpose.core.align.refine_run import run_refine_joint
+
+    with _scene(path, defaults) as scene:
+        return plain(run_refine_joint(scene, opts).data)
 
 
 def score_task(path: str, defaults, window_us: int = TRIAGE_WINDOW_US) -> dict:

@@ -83,7 +83,7 @@ def test_every_command_returns_an_exit_status():
     assert names == {"demo", "synth", "info", "gui", "export", "import", "sync", "refine", "score", "dataset"}
     parsers = dict(sub.choices)
     nested = next(a for a in parsers.pop("dataset")._actions if isinstance(a, argparse._SubParsersAction))
-    assert set(nested.choices) == {"info", "import", "sync", "score", "report", "export"}
+    assert set(nested.choices) == {"info", "import", "sync", "refine", "score", "report", "export"}
     parsers.update({f"dataset {n}": p for n, p in nested.choices.items()})
     for name, parser in parsers.items():
         func = parser.get_default("func")
