@@ -85,13 +85,14 @@ def _warm_up_in_background() -> None:
 
 
 def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_after: float | None = None,
-            start_busiest: bool = False, dataset: str | None = None) -> int:
+            start_busiest: bool = False, dataset: str | None = None, at_s: float | None = None) -> int:
     """Open the main window (on ``scene`` if given) and run the event loop.
 
     With ``screenshot``, the window is rendered to that PNG once the first frame is drawn and at
     least ``quit_after`` seconds (default 3) have passed, then the app quits: this works under
     any X display, including Xvfb. ``start_busiest`` opens at the window with the most events
-    (the demo uses it so the first view shows motion). ``dataset``: open the dataset view on that folder
+    (the demo uses it so the first view shows motion); ``at_s`` at that many seconds after the first event (the
+    triage report's "open it" commands). ``dataset``: open the dataset view on that folder
     instead (the main window appears when a scene is opened from it; the screenshot is of the dataset view
     once every row is read).
     """
@@ -134,6 +135,9 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
             return 2
         if session is not None and start_busiest:
             session.set_time(session.busiest_time())
+        if session is not None and at_s is not None:
+            t0, t1 = session.time_range
+            session.set_time(int(min(max(t0 + round(at_s * 1e6), t0), t1)))
     if unattended:
         wait_s = 3.0 if quit_after is None else float(quit_after)
         t_start = QtCore.QElapsedTimer()

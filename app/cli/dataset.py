@@ -155,8 +155,9 @@ def cmd_report(args) -> int:
 
     ds = _open_dataset(args)
     check_out_path(args.out, "file", ds.input_folders(args.out))        # before minutes of work, and never a device
-    result = _map(args, ds, triage_task, SyncOptions(), label="triage")
-    doc = triage(result.to_json(), order=[ref.name for ref in ds.scenes])
+    result = _map(args, ds, triage_task, SyncOptions(edges=args.edges, windows=args.windows), label="triage")
+    doc = triage(result.to_json(), order=[ref.name for ref in ds.scenes],
+                 paths={ref.name: str(ref.path) for ref in ds.scenes})
     path = write_report(doc, args.out)
     for name, err in result.failed.items():
         print(f"evpose dataset report: {name}: failed: {err}", file=sys.stderr)
@@ -280,6 +281,9 @@ def add_dataset_parser(subparsers) -> None:
     p = sub.add_parser("report", help="the triage report: one self-contained HTML file")
     p.add_argument("dataset", metavar="DATASET")
     p.add_argument("--out", required=True, metavar="REPORT.html")
+    p.add_argument("--edges", action="store_true", help="also fit each scene's clock and poses from the event edges "
+                   "(evpose sync --edges: tens of seconds per scene): pose and camera-mounting verdicts")
+    p.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
     _cluster_args(p)
     p.set_defaults(func=cmd_report)
 

@@ -3,6 +3,7 @@ only inside them (building the parser, or any other command, loads no GUI librar
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -49,7 +50,7 @@ def run_gui(scene: str | None, args, start_busiest: bool = False, dataset: str |
     except ImportError as exc:
         raise CliError(f"the desktop app cannot start: {exc}") from None
     return run_app(scene, screenshot=getattr(args, "screenshot", None), quit_after=getattr(args, "quit_after", None),
-                   start_busiest=start_busiest, dataset=dataset)
+                   start_busiest=start_busiest, dataset=dataset, at_s=getattr(args, "at", None))
 
 
 @command("demo")
@@ -66,6 +67,8 @@ def cmd_demo(args) -> int:
 
 @command("gui")
 def cmd_gui(args) -> int:
+    if args.at is not None and not (math.isfinite(args.at) and args.at >= 0):
+        raise CliError(f"--at: expected seconds >= 0 after the first event, got {args.at}")
     check_quit_after(args)
     dataset = dataset_path(args.scene)
     return run_gui(None if dataset else args.scene, args, dataset=dataset)
@@ -88,4 +91,6 @@ def add_gui_parser(subparsers) -> None:
     s.add_argument("scene", nargs="?", help="a scene folder (or scene.toml), or a dataset folder (or dataset.toml)")
     s.add_argument("--screenshot", help="save a screenshot of the main window (the dataset view) to this PNG")
     s.add_argument("--quit-after", type=float, help="quit the app after this many seconds")
+    s.add_argument("--at", type=float, metavar="SECONDS", help="open the scene at this time: seconds after its first "
+                                                               "event (as the triage report names windows)")
     s.set_defaults(func=cmd_gui)

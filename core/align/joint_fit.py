@@ -456,8 +456,16 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
     j1 = fit.value(d1, sigma, beta0)
     result.objective_before, result.objective_after = j0, j1
     if not (np.isfinite(j1) and (not np.isfinite(j0) or j1 > j0)):
-        result.reason = "the fit did not improve the objective; start kept"
-        return
+        if not np.isfinite(j0):
+            result.reason = "the fit did not improve the objective; start kept"
+            return
+        # Nothing beats the start: it is the answer, with the standard errors of the fit at it (a right start --
+        # the rate's clock, the poses in effect -- is confirmed with the edges' precision, not left with the rate's)
+        fit.state, fit.contours = start, None
+        cov = _covariance(fit, sigma, beta0, lay, fit.p, np.zeros_like(total))
+        end = start
+        result.notes.append(f"the start is where the edges agree best (objective {j0:.4f}, the fit reached "
+                            f"{j1:.4f}): kept, with the fit's standard errors at it")
     result.accepted = True
     result.reason = ""
     sd = np.sqrt(np.where(np.isfinite(np.diag(cov)), np.diag(cov), np.inf)) if cov is not None else np.full(lay.n, np.inf)

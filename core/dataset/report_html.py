@@ -28,7 +28,8 @@ def render_report(doc: dict) -> str:
     ids = {r["name"]: f"scene-{k}" for k, r in enumerate(doc["scenes"])}
     title = f"evpose triage: {doc['dataset']}"
     parts = [f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{escape(title)}</title>',
-             f"<style>{CSS}</style></head><body><main>", _header(doc), _ranked(doc, ids), _overview(doc, ids)]
+             f"<style>{CSS}</style></head><body><main>", _header(doc), _scenes_first(doc, ids), _ranked(doc, ids),
+             _overview(doc, ids)]
     parts += [_scene_section(r, ids[r["name"]], doc["thresholds"]) for r in doc["scenes"]]
     parts.append(_footer(doc))
     parts.append(f"</main><script>{SORT_JS}</script></body></html>\n")
@@ -78,6 +79,19 @@ def _header(doc: dict) -> str:
             f'<ul class="facts" id="summary">{items}</ul></header>')
 
 
+def _scenes_first(doc: dict, ids: dict) -> str:
+    """The scenes to fix, worst first: each with its cause, its reasons and the command to run next."""
+    rows = []
+    for e in doc.get("scenes_ranked", []):
+        reasons = "".join(f"<li>{_e(x)}</li>" for x in e["reasons"])
+        rows.append(f'<li><span class="{_sev_class(e["cause"], e["severity"])}" title="severity">'
+                    f'{e["severity"]:.1f}</span><a href="#{ids[e["scene"]]}" class="scene">{_e(e["scene"])}</a>'
+                    f'<span class="tag">{_e(e["cause"])}</span><ul class="reasons">{reasons}</ul>'
+                    f'<code class="next" title="the next command">{_e(e["next"])}</code></li>')
+    body = f'<ol class="ranked scenes-first">{"".join(rows)}</ol>' if rows else '<p class="ok">Nothing flagged.</p>'
+    return f'<section id="scenes-first"><h2>Fix these scenes first</h2>{body}</section>'
+
+
 def _ranked(doc: dict, ids: dict) -> str:
     rows = []
     for e in doc["ranked"]:
@@ -90,7 +104,7 @@ def _ranked(doc: dict, ids: dict) -> str:
                     f'{e["severity"]:.1f}</span><a href="#{ids[e["scene"]]}" class="scene">{_e(e["scene"])}</a>'
                     f'{where}<span class="reason">{_e(e["reason"])}</span></li>')
     body = f'<ol class="ranked">{"".join(rows)}</ol>' if rows else '<p class="ok">Nothing flagged.</p>'
-    return f'<section id="ranked"><h2>Look at these first</h2>{body}</section>'
+    return f'<section id="ranked"><h2>Every flag, worst first</h2>{body}</section>'
 
 
 def _overview(doc: dict, ids: dict) -> str:

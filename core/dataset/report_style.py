@@ -22,6 +22,9 @@ a.scene{font-weight:600;color:var(--acc);text-decoration:none}
 a{color:var(--acc)}
 .tag{background:#eef2ff;color:#3730a3;border-radius:4px;padding:0 6px;font-size:12px}
 .reason{flex:1}
+ol.scenes-first li{flex-wrap:wrap}
+ul.reasons{flex:1;margin:0;padding-left:18px;min-width:280px}
+code.next{flex-basis:100%;margin-left:30px;font-size:12px;color:var(--dim);word-break:break-all}
 .sev{display:inline-block;min-width:44px;text-align:center;border-radius:4px;padding:0 4px;font-size:12px;
 font-weight:700;color:#fff;font-variant-numeric:tabular-nums}
 .sev.fail{background:#7f1d1d}.sev.hi{background:var(--bad)}.sev.mid{background:var(--warn)}.sev.lo{background:#9ca3af}

@@ -17,7 +17,16 @@ What is flagged (thresholds are the module constants, echoed in the document's `
 * more than :data:`MAX_UNLABELED_SHARE` of the windows without a label (trajectory holes, outside it);
 * an object whose median alignment score is below :data:`MIN_MEDIAN_SCORE` (0 is "no better than noise";
   on the synthetic scenes the true poses score ~0.35-0.45 and a 5 mm / 3 degree error or a 20 ms clock
-  error 0.01-0.3), or that no window scores.
+  error 0.01-0.3), or that no window scores;
+* with the edge stage (``dataset report --edges``: clock and poses fitted together, with the mounting check), a
+  **pose verdict** per object: the fit moves it by more than :data:`VERDICT_SIGMAS` of its standard errors *and*
+  by at least :data:`POSE_MATTERS_MM` / :data:`POSE_MATTERS_DEG` (what moves a DAVIS346 label by about half a pixel
+  at 0.5 m); a **mounting verdict** when the mounting check found the hand-eye off. A pose verdict explains its
+  object's low scores (the score flag folds under it); the scores of every object fold under a flagged clock or
+  mounting (they rank below it and say to fix that first).
+
+Besides the flat list of flags, ``scenes_ranked`` ranks the scenes (worst flag first), each with its reasons in
+order and the next command to run.
 
 The clock is judged against the clock in effect (the manifest prior plus any stored correction: what the
 labels use now), so a scene whose estimate was applied leaves the list; the distance to the prior is
@@ -42,7 +51,10 @@ __all__ = [
     "MAX_SKEW_DRIFT_US",
     "MAX_UNLABELED_SHARE",
     "MIN_MEDIAN_SCORE",
+    "POSE_MATTERS_DEG",
+    "POSE_MATTERS_MM",
     "SEVERITY_FAILED",
+    "VERDICT_SIGMAS",
     "TRIAGE_FORMAT",
     "TriageError",
     "triage",
@@ -60,10 +72,15 @@ MAX_SKEW_DRIFT_US = 2000.0
 MAX_UNLABELED_SHARE = 0.10
 #: An object whose median score over its scored windows is below this is flagged.
 MIN_MEDIAN_SCORE = 0.15
+#: A fitted pose change is a verdict when beyond this many standard errors (the ``--apply`` rule) and at least
+#: POSE_MATTERS_MM (displacement of the object's centre) or POSE_MATTERS_DEG.
+VERDICT_SIGMAS = 2.0
+POSE_MATTERS_MM = 1.0
+POSE_MATTERS_DEG = 0.5
 #: Severity of a failed scene (above any other flag's, which are capped well below it).
 SEVERITY_FAILED = 100.0
 #: Category weights of the severities (a flag's severity is its weight times how far past its threshold).
-_W_CLOCK, _W_OBJECT, _W_UNLABELED, _W_LOOSE = 3.0, 2.0, 1.0, 1.0
+_W_CLOCK, _W_OBJECT, _W_UNLABELED, _W_LOOSE, _W_POSE, _W_MOUNT = 3.0, 2.0, 1.0, 1.0, 2.5, 3.5
 _CAP = 10.0
 
 
@@ -71,7 +88,7 @@ class TriageError(InputError):
     """A triage input document lacks a field the report needs; the message names the scene and the field."""
 
 
-def triage(batch_json: dict, order: list | None = None) -> dict:
+def triage(batch_json: dict, order: list | None = None, paths: dict | None = None) -> dict:
     """The triage report's document of a dataset.
 
     Parameters
@@ -80,6 +97,8 @@ def triage(batch_json: dict, order: list | None = None) -> dict:
         ``{"dataset", "scenes": {name: triage_task document}, "failed": {name: error}, "runtime_s"}``.
     order : list of str, optional
         Scene names in dataset order (default: the scenes, then the failed ones, as they come).
+    paths : dict, optional
+        Scene name -> folder (for the failed scenes' records and commands; the others carry their own).
 
     Returns
     -------
@@ -95,7 +114,7 @@ def triage(batch_json: dict, order: list | None = None) -> dict:
     records = []
     for name in names:
         if name in failed_in:
-            records.append(_failed_record(name, str(failed_in[name])))
+            records.append(_failed_record(name, str(failed_in[name]), (paths or {}).get(name)))
         else:
             records.append(_scene_record(name, scenes_in[name]))
     position = {r["name"]: k for k, r in enumerate(records)}
@@ -105,7 +124,40 @@ def triage(batch_json: dict, order: list | None = None) -> dict:
     ranked = [{"rank": k + 1, "scene": e["scene"], **{f: e[f] for f in _FLAG_FIELDS}} for k, e in enumerate(ranked)]
     return {"format": TRIAGE_FORMAT, "dataset": str(batch_json.get("dataset", "")),
             "runtime_s": float(batch_json.get("runtime_s") or 0.0), "summary": _summary(records),
-            "thresholds": _thresholds(), "ranked": ranked, "scenes": records}
+            "thresholds": _thresholds(), "scenes_ranked": _scenes_ranked(records, position), "ranked": ranked,
+            "scenes": records}
+
+
+def _scenes_ranked(records: list, position: dict) -> list:
+    """The flagged scenes, worst first (their worst flag, then dataset order): ``rank``, ``scene``, ``severity``,
+    ``cause`` (the worst flag's kind), ``reasons`` (every flag's reason, worst first) and ``next`` (the command
+    that deals with the worst cause)."""
+    out = []
+    for r in records:
+        if not r["flags"]:
+            continue
+        flags = sorted(r["flags"], key=lambda f: -f["severity"])
+        out.append({"scene": r["name"], "severity": flags[0]["severity"], "cause": flags[0]["kind"],
+                    "reasons": [f["reason"] for f in flags], "next": _next_command(r, flags[0])})
+    out.sort(key=lambda e: (-e["severity"], position[e["scene"]]))
+    return [{"rank": k + 1, **e} for k, e in enumerate(out)]
+
+
+def _next_command(rec: dict, flag: dict) -> str:
+    """The command for a scene's worst flag (paths as the report knows them)."""
+    path = rec.get("path") or rec["name"]
+    kind = flag["kind"]
+    if kind == "failed":
+        return f"evpose info {path}"
+    if kind in ("clock", "skew", "clock_uncertain"):
+        return f"evpose sync {path} --edges --apply"
+    if kind == "mounting":
+        return f"evpose refine {path} --joint --hand-eye --apply"
+    if kind == "pose":
+        return f"evpose refine {path} --joint --apply"
+    if flag.get("t_label_us") is not None and rec.get("t0_us") is not None:
+        return f"evpose gui {path} --at {(flag['t_label_us'] - rec['t0_us']) * 1e-6:.3f}"
+    return f"evpose gui {path}"
 
 
 _FLAG_FIELDS = ("object", "window", "t_label_us", "kind", "severity", "reason")
@@ -120,10 +172,10 @@ def _num(x, default):
     return default if x is None else x
 
 
-def _failed_record(name: str, error: str) -> dict:
-    return {"name": name, "status": "failed", "error": error, "path": None, "n_events": None, "duration_s": None,
+def _failed_record(name: str, error: str, path: str | None = None) -> dict:
+    return {"name": name, "status": "failed", "error": error, "path": path, "n_events": None, "duration_s": None,
             "t0_us": None,
-            "objects": [], "windows": None, "clock": None, "scores": {}, "review": None,
+            "objects": [], "windows": None, "clock": None, "scores": {}, "review": None, "verdicts": {},
             "flags": [_flag("failed", SEVERITY_FAILED, f"failed: {error}")]}
 
 
@@ -143,9 +195,44 @@ def _scene_record(name: str, doc: dict) -> dict:
     except (TypeError, ValueError, AttributeError) as exc:
         raise TriageError(f"scenes.{name}: malformed triage document ({exc})") from None
     clock_flags = _clock_flags(clock)
-    clock_sev = [f["severity"] for f in clock_flags if f["kind"] in ("clock", "skew")]
-    rec["flags"] = clock_flags + _unlabeled_flags(windows) + _object_flags(scores, max(clock_sev, default=None))
+    verdicts = _verdict_flags(sync)
+    rec["verdicts"] = {f["object"]: f["reason"] for f in verdicts if f["kind"] == "pose"}
+    cause_sev = [f["severity"] for f in clock_flags + verdicts if f["kind"] in ("clock", "skew", "mounting")]
+    score_flags = [f for f in _object_flags(scores, max(cause_sev, default=None)) if f["object"] not in rec["verdicts"]]
+    rec["flags"] = clock_flags + verdicts + _unlabeled_flags(windows) + score_flags
     return rec
+
+
+def _verdict_flags(sync: dict) -> list:
+    """Pose and mounting verdicts of the edge stage (none without it, or when it was not accepted)."""
+    edges = (sync.get("stages") or {}).get("edges")
+    if not edges or not edges.get("accepted"):
+        return []
+    flags = []
+    he = edges.get("hand_eye")
+    if he and _significant(he):
+        flags.append(_flag("mounting", _W_MOUNT * min(_n_sigma(he) / VERDICT_SIGMAS, _CAP),
+                           f"camera mounting (hand-eye) off by {he['dt_mm']:.2f} mm ± {he['dt_std_mm']:.2f}, "
+                           f"{he['dR_deg']:.2f}° ± {he['dR_std_deg']:.2f} (the edges' fit, with the clock and poses)"))
+    for name, o in (edges.get("objects") or {}).items():
+        if _significant(o):
+            flags.append(_flag("pose", _W_POSE * min(_n_sigma(o) / VERDICT_SIGMAS, _CAP),
+                               f"{name}: pose off by {o['dt_mm']:.2f} mm ± {o['dt_std_mm']:.2f}, {o['dR_deg']:.2f}° "
+                               f"± {o['dR_std_deg']:.2f} (the edges' fit, with the clock)", obj=name))
+    return flags
+
+
+def _n_sigma(o: dict) -> float:
+    def r(x, s):
+        return abs(x) / s if s is not None and math.isfinite(s) and s > 0 else 0.0
+    return max(r(o["dt_mm"], o["dt_std_mm"]), r(o["dR_deg"], o["dR_std_deg"]))
+
+
+def _significant(o: dict) -> bool:
+    """A change beyond :data:`VERDICT_SIGMAS` of its standard error in a part that is also large enough to matter."""
+    def beyond(x, s, matters):
+        return s is not None and math.isfinite(s) and s > 0 and abs(x) > VERDICT_SIGMAS * s and abs(x) >= matters
+    return beyond(o["dt_mm"], o["dt_std_mm"], POSE_MATTERS_MM) or beyond(o["dR_deg"], o["dR_std_deg"], POSE_MATTERS_DEG)
 
 
 def _windows(info: dict, score: dict) -> dict:
@@ -228,10 +315,10 @@ def _unlabeled_flags(w: dict) -> list:
 
 
 def _object_flags(scores: dict, clock_severity: float | None) -> list:
-    """Flags of objects scoring low; with the clock flagged (``clock_severity``) they say to check it first and rank
+    """Flags of objects scoring low; with the clock flagged (``clock_severity``) they say to fix that first and rank
     just below it (a wrong clock lowers every object's score)."""
     flags = []
-    hint = " (the clock is flagged too: check it first)" if clock_severity is not None else ""
+    hint = " (the clock or the mounting is flagged too: fix that first)" if clock_severity is not None else ""
     for name, s in scores.items():
         if s["n_valid"] == 0:
             flags.append(_flag("object", _W_OBJECT, f"{name}: no window scored (out of view or too few events)",
@@ -260,7 +347,8 @@ def _summary(records: list) -> dict:
 
 
 def _thresholds() -> dict:
-    return {"clock_k_sigma": CLOCK_K_SIGMA,
+    return {"clock_k_sigma": CLOCK_K_SIGMA, "verdict_sigmas": VERDICT_SIGMAS, "pose_matters_mm": POSE_MATTERS_MM,
+            "pose_matters_deg": POSE_MATTERS_DEG,
             "clock_loose_std_us": CLOCK_LOOSE_STD_US, "max_skew_drift_us": MAX_SKEW_DRIFT_US,
             "max_unlabeled_share": MAX_UNLABELED_SHARE, "min_median_score": MIN_MEDIAN_SCORE,
             "min_events_near": MIN_EVENTS_NEAR, "worst_windows": WORST_WINDOWS,

@@ -176,7 +176,7 @@ def test_real_clock_error_and_pose_errors_are_flagged(tiny_doc):
                                         f"from the prior ({c['n_sigma']:.0f} σ)")
     # objects scored under the wrong clock score low, and the reason says to look at the clock first
     objs = [f for f in r["flags"] if f["kind"] == "object"]
-    assert objs and all("check it first" in f["reason"] for f in objs)
+    assert objs and all("fix that first" in f["reason"] for f in objs)
     assert t["ranked"][0]["kind"] == "clock"
 
 
@@ -270,13 +270,13 @@ def test_low_scores_point_at_a_wrong_clock_but_not_at_a_loose_one(clean_doc):
     d = degrade(shift_prior(clean_doc, 40_000), "box", 0.35)
     r = scene_rec(tr.triage(batch({"s": d})), "s")
     assert [f["kind"] for f in r["flags"]] == ["clock", "object"]
-    assert r["flags"][1]["reason"].endswith(" (the clock is flagged too: check it first)")
+    assert r["flags"][1]["reason"].endswith(" (the clock or the mounting is flagged too: fix that first)")
     d["sync"].update(offset_std_us=None, offset_pinned=False)     # the rate does not pin the clock at all
     r = scene_rec(tr.triage(batch({"s": d})), "s")
     assert r["clock"]["n_sigma"] is None and r["clock"]["sigma_total_us"] is None
     assert r["clock"]["delta_effect_us"] == -40_000
     assert [f["kind"] for f in r["flags"]] == ["clock_uncertain", "object"]
-    assert "check it first" not in r["flags"][1]["reason"]
+    assert "fix that first" not in r["flags"][1]["reason"]
 
 
 def test_loose_sigma_alone_does_not_make_a_disagreement(clean_doc):

@@ -1,0 +1,109 @@
+"""Issue 24 ("Must show"): on a test dataset of five scenes with the same events -- right labels, the clock 20 ms
+off, one object 5 mm / 3 deg off, the camera mounting (hand-eye) 2 mm / 0.5 deg off, a broken events file --
+``dataset report --edges`` ranks every wrong scene above the right one with the right cause (the right scene has no
+flag), and after ``dataset refine --apply`` the flags of the fixed scenes are gone while the right scene's files
+are unchanged byte for byte."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evpose_testing import half_davis_camera
+
+pytest.importorskip("distributed")
+
+
+def _edit(scene: Path, change) -> None:
+    import tomli_w
+
+    manifest = tomllib.loads((scene / "scene.toml").read_text())
+    change(manifest)
+    (scene / "scene.toml").write_text(tomli_w.dumps(manifest))
+
+
+def _moved(T, mm: float, deg: float, axis) -> list:
+    from scipy.spatial.transform import Rotation
+
+    T = np.asarray(T, dtype=np.float64).copy()
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    T[:3, :3] = Rotation.from_rotvec(np.radians(deg) * axis).as_matrix() @ T[:3, :3]
+    T[:3, 3] += mm * 1e-3 * axis
+    return T.tolist()
+
+
+@pytest.fixture(scope="module")
+def triage_dataset(tmp_path_factory) -> Path:
+    """Five scenes from one generated recording (3 objects, 2.5 s at 0.5 m/s, half resolution; its labels right)."""
+    from evpose.core.sim.synth import generate
+    from evpose.core.sim.synth_config import SynthConfig
+
+    base = tmp_path_factory.mktemp("triage") / "base"
+    generate(base, SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5, duration_s=2.5,
+                               seed=12, max_px_per_frame=0.5, camera=half_davis_camera()))
+    root = base.parent / "ds"
+    for name in ("a_right", "b_clock", "c_pose", "d_mounting", "e_broken"):
+        shutil.copytree(base, root / name)
+    _edit(root / "b_clock", lambda m: m["clock"].update(offset_us=20_000))
+
+    def box_off(m):
+        box = next(o for o in m["objects"] if o["name"] == "box")
+        box["T_base_obj"] = _moved(box["T_base_obj"], 5.0, 3.0, [0.3, -0.5, 0.8])
+    _edit(root / "c_pose", box_off)
+    # the recorded poses become the flange's, the camera mounted 2 mm / 0.5 deg off it
+    _edit(root / "d_mounting", lambda m: m["trajectory"].update(frame="tcp", hand_eye=_moved(np.eye(4), 2.0, 0.5,
+                                                                                             [1.0, 0.4, -0.2])))
+    (root / "e_broken" / "events.h5").write_bytes(b"not an hdf5 file")
+    return root
+
+
+def _evpose(*args, timeout=1200):
+    r = subprocess.run([sys.executable, "-m", "evpose", *map(str, args)], capture_output=True, text=True,
+                       timeout=timeout)
+    return r
+
+
+def _report(root: Path, out: Path) -> dict:
+    r = _evpose("dataset", "report", root, "--edges", "--windows", "16", "--out", out, "--workers", "2", "--json",
+                "-q")
+    assert r.returncode == 3, r.stderr                               # the broken scene: a partial run
+    return json.loads(r.stdout)
+
+
+def _files(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_the_report_ranks_wrong_scenes_by_cause_and_refine_apply_clears_them(triage_dataset, tmp_path):
+    root = triage_dataset
+    right_before = _files(root / "a_right")
+    doc = _report(root, tmp_path / "before.html")
+    ranked = {e["scene"]: e for e in doc["scenes_ranked"]}
+    print(json.dumps(doc["scenes_ranked"], indent=1))
+    assert "a_right" not in ranked and not doc["scenes"]["a_right"]["flags"]
+    assert set(ranked) == {"b_clock", "c_pose", "d_mounting", "e_broken"}
+    assert ranked["e_broken"]["rank"] == 1 and ranked["e_broken"]["cause"] == "failed"
+    assert ranked["e_broken"]["next"] == f"evpose info {root / 'e_broken'}"
+    assert ranked["b_clock"]["cause"] == "clock" and "sync" in ranked["b_clock"]["next"]
+    # the edges confirm the rate's clock with their own precision (not the rate's 4.75 ms)
+    assert doc["scenes"]["b_clock"]["clock"]["offset_std_us"] < 1000 and ranked["b_clock"]["severity"] >= 20
+    assert ranked["c_pose"]["cause"] == "pose" and "box" in doc["scenes"]["c_pose"]["verdicts"]
+    assert set(doc["scenes"]["c_pose"]["verdicts"]) == {"box"}          # the right objects get no verdict
+    assert "refine" in ranked["c_pose"]["next"] and "--joint" in ranked["c_pose"]["next"]
+    assert ranked["d_mounting"]["cause"] == "mounting" and "--hand-eye" in ranked["d_mounting"]["next"]
+    # a low score explained by the pose verdict is not a second flag of the same object
+    assert sum(1 for f in doc["scenes"]["c_pose"]["flags"] if f["object"] == "box") == 1
+
+    r = _evpose("dataset", "refine", root, "--apply", "--windows", "16", "--workers", "2", "--json", "-q")
+    assert r.returncode == 3, r.stderr
+    after = _report(root, tmp_path / "after.html")
+    left = {e["scene"] for e in after["scenes_ranked"]}
+    assert "b_clock" not in left and "c_pose" not in left, after["scenes_ranked"]
+    assert "e_broken" in left and "a_right" not in left
+    assert _files(root / "a_right") == right_before                  # nothing written into the right scene
