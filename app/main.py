@@ -136,8 +136,7 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
         if session is not None and start_busiest:
             session.set_time(session.busiest_time())
         if session is not None and at_s is not None:
-            t0, t1 = session.time_range
-            session.set_time(int(min(max(t0 + round(at_s * 1e6), t0), t1)))
+            session.set_time(session.time_range[0] + round(at_s * 1e6))          # clamped to the recording
     if unattended:
         wait_s = 3.0 if quit_after is None else float(quit_after)
         t_start = QtCore.QElapsedTimer()

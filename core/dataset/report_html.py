@@ -88,7 +88,7 @@ def _scenes_first(doc: dict, ids: dict) -> str:
                     f'{e["severity"]:.1f}</span><a href="#{ids[e["scene"]]}" class="scene">{_e(e["scene"])}</a>'
                     f'<span class="tag">{_e(e["cause"])}</span><ul class="reasons">{reasons}</ul>'
                     f'<code class="next" title="the next command">{_e(e["next"])}</code></li>')
-    body = f'<ol class="ranked scenes-first">{"".join(rows)}</ol>' if rows else '<p class="ok">Nothing flagged.</p>'
+    body = f'<ol class="scenes-first">{"".join(rows)}</ol>' if rows else '<p class="ok">Nothing flagged.</p>'
     return f'<section id="scenes-first"><h2>Fix these scenes first</h2>{body}</section>'
 
 

@@ -14,16 +14,19 @@ ul.facts li{background:var(--card);border:1px solid var(--line);border-radius:14
 ul.facts li.bad{border-color:var(--bad);color:var(--bad);font-weight:600}
 section{background:var(--card);border:1px solid var(--line);border-radius:10px;padding:14px 18px;margin:18px 0}
 h2{font-size:18px;margin:0 0 10px}
-ol.ranked{margin:0;padding:0;list-style:none;counter-reset:r}
-ol.ranked li{counter-increment:r;display:flex;align-items:baseline;gap:8px;padding:5px 0;border-top:1px solid var(--line)}
-ol.ranked li:first-child{border-top:0}
-ol.ranked li::before{content:counter(r) ".";color:var(--dim);width:22px;text-align:right;font-variant-numeric:tabular-nums}
+ol.ranked,ol.scenes-first{margin:0;padding:0;list-style:none;counter-reset:r}
+ol.ranked li,ol.scenes-first>li{counter-increment:r;display:flex;align-items:baseline;gap:8px;padding:5px 0;
+border-top:1px solid var(--line)}
+ol.ranked li:first-child,ol.scenes-first>li:first-child{border-top:0}
+ol.ranked li::before,ol.scenes-first>li::before{content:counter(r) ".";color:var(--dim);width:22px;text-align:right;
+font-variant-numeric:tabular-nums}
 a.scene{font-weight:600;color:var(--acc);text-decoration:none}
 a{color:var(--acc)}
 .tag{background:#eef2ff;color:#3730a3;border-radius:4px;padding:0 6px;font-size:12px}
 .reason{flex:1}
-ol.scenes-first li{flex-wrap:wrap}
+ol.scenes-first>li{flex-wrap:wrap}
 ul.reasons{flex:1;margin:0;padding-left:18px;min-width:280px}
+ul.reasons li{padding:1px 0}
 code.next{flex-basis:100%;margin-left:30px;font-size:12px;color:var(--dim);word-break:break-all}
 .sev{display:inline-block;min-width:44px;text-align:center;border-radius:4px;padding:0 4px;font-size:12px;
 font-weight:700;color:#fff;font-variant-numeric:tabular-nums}

@@ -173,3 +173,14 @@ def test_import_format_names_are_the_engines():
     from evpose.core.importers import FORMATS
 
     assert FORMAT_NAMES == tuple(FORMATS)
+
+
+@pytest.mark.parametrize("at", ["-1", "nan", "inf"])
+def test_gui_at_refuses_a_time_before_the_recording_in_one_line(at, capsys, tmp_path):
+    """``evpose gui SCENE --at SECONDS`` (the triage report's "open it here" command) checks its value before any
+    window opens."""
+    from evpose.app.cli.main import main
+
+    assert main(["gui", str(tmp_path), "--at", at]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--at" in err[0], err
