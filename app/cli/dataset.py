@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from evpose.app.cli.errors import EXIT_PARTIAL, CliError, command
 from evpose.app.cli.export import format_options_from_args, objects_from_args, window_us_from_args
@@ -149,24 +150,32 @@ def cmd_score(args) -> int:
 def cmd_report(args) -> int:
     from evpose.core.align.sync_run import SyncOptions
     from evpose.core.data.owned_files import check_out_path
-    from evpose.core.dataset.report_html import write_report
+    from evpose.core.dataset.report_files import check_report_siblings, write_report_files
     from evpose.core.dataset.tasks import triage_task
     from evpose.core.dataset.triage import triage
 
     ds = _open_dataset(args)
     check_out_path(args.out, "file", ds.input_folders(args.out))        # before minutes of work, and never a device
+    for sibling in (Path(args.out).with_suffix(".csv"), Path(args.out).with_suffix(".json")):
+        check_out_path(sibling, "file", ds.input_folders(sibling))
+    previous = check_report_siblings(args.out)                             # another program's file: refused now
     result = _map(args, ds, triage_task, SyncOptions(edges=args.edges, windows=args.windows), label="triage")
     doc = triage(result.to_json(), order=[ref.name for ref in ds.scenes],
                  paths={ref.name: str(ref.path) for ref in ds.scenes})
-    path = write_report(doc, args.out)
+    path = write_report_files(doc, args.out, previous)
     for name, err in result.failed.items():
         print(f"evpose dataset report: {name}: failed: {err}", file=sys.stderr)
     # the dataset contract (scenes by name, failed, runtime_s) around the report's own data
     data = {"dataset": doc["dataset"], "report": str(path),
             "scenes": {sc["name"]: sc for sc in doc["scenes"] if sc["status"] == "ok"}, "failed": result.failed,
             "runtime_s": result.runtime_s, **{k: v for k, v in doc.items() if k not in ("dataset", "scenes", "runtime_s")}}
-    emit(args, data, f"wrote {path}: {len(result.scenes)} scene(s), {len(result.failed)} failed, "
-                     f"{result.runtime_s:.1f} s")
+    text = (f"wrote {path} (and its .csv, .json): {len(result.scenes)} scene(s), {len(result.failed)} failed, "
+            f"{result.runtime_s:.1f} s")
+    if doc["since_last"] is not None:
+        s = doc["since_last"]
+        text += (f"\nsince the last report: {len(s['new'])} newly flagged, {len(s['resolved'])} no longer flagged, "
+                 f"{len(s['changed'])} flagged for another cause")
+    emit(args, data, text)
     return EXIT_PARTIAL if result.failed else 0
 
 

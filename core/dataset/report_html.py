@@ -1,5 +1,5 @@
 """The triage report as one self-contained HTML file: the document of :func:`evpose.core.dataset.triage.triage`
-drawn as a header, the ranked "look at these first" list, an overview of every scene (table, clock and
+drawn as a header, the scenes to fix first (with what changed since the last report), every flag ranked, an overview of every scene (table, clock and
 unlabeled-share plots) and one section per scene (facts, flags, score distributions, worst windows).
 
 No network: the CSS is inline, the plots are inline SVG (:mod:`evpose.core.dataset.svg_plots`), the only
@@ -79,6 +79,16 @@ def _header(doc: dict) -> str:
             f'<ul class="facts" id="summary">{items}</ul></header>')
 
 
+def _since_last(doc: dict) -> str:
+    s = doc.get("since_last")
+    if not s:
+        return ""
+    parts = [("newly flagged", ", ".join(s["new"])), ("no longer flagged", ", ".join(s["resolved"])),
+             ("flagged for another cause", ", ".join(f"{c['scene']} ({c['was']} → {c['now']})" for c in s["changed"]))]
+    items = "".join(f"<li><b>{_e(k)}</b>: {_e(v)}</li>" for k, v in parts if v)
+    return f'<p class="since" id="since-last">Since the last report: {"<ul>" + items + "</ul>" if items else "nothing changed."}</p>'
+
+
 def _scenes_first(doc: dict, ids: dict) -> str:
     """The scenes to fix, worst first: each with its cause, its reasons and the command to run next."""
     rows = []
@@ -89,7 +99,7 @@ def _scenes_first(doc: dict, ids: dict) -> str:
                     f'<span class="tag">{_e(e["cause"])}</span><ul class="reasons">{reasons}</ul>'
                     f'<code class="next" title="the next command">{_e(e["next"])}</code></li>')
     body = f'<ol class="scenes-first">{"".join(rows)}</ol>' if rows else '<p class="ok">Nothing flagged.</p>'
-    return f'<section id="scenes-first"><h2>Fix these scenes first</h2>{body}</section>'
+    return f'<section id="scenes-first"><h2>Fix these scenes first</h2>{_since_last(doc)}{body}</section>'
 
 
 def _ranked(doc: dict, ids: dict) -> str:

@@ -27,6 +27,7 @@ a{color:var(--acc)}
 ol.scenes-first>li{flex-wrap:wrap}
 ul.reasons{flex:1;margin:0;padding-left:18px;min-width:280px}
 ul.reasons li{padding:1px 0}
+p.since{margin:0 0 8px;color:var(--dim)}p.since ul{margin:2px 0 0;padding-left:18px}
 code.next{flex-basis:100%;margin-left:30px;font-size:12px;color:var(--dim);word-break:break-all}
 .sev{display:inline-block;min-width:44px;text-align:center;border-radius:4px;padding:0 4px;font-size:12px;
 font-weight:700;color:#fff;font-variant-numeric:tabular-nums}

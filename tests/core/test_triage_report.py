@@ -361,3 +361,28 @@ def test_a_malformed_document_names_the_scene_and_the_field(clean_doc):
     del d["sync"]["offset_std_us"]
     with pytest.raises(tr.TriageError, match=r"scenes\.bad: missing field 'offset_std_us'"):
         tr.triage(batch({"ok": clean_doc, "bad": d}))
+
+
+def test_report_files_replace_only_their_own_siblings_and_record_what_changed(clean_doc, tmp_path):
+    """REPORT.csv and REPORT.json beside the HTML: written with it; a rerun compares with the last JSON; another
+    program's file of either name is refused (one line naming it) and left as it was."""
+    from evpose.core.dataset.report_files import check_report_siblings, write_report_files
+    from evpose.core.errors import NotOursError
+
+    html = tmp_path / "r.html"
+    first = tr.triage(batch({"s1": clean_doc, "s2": shift_prior(clean_doc, 30_000)}))
+    write_report_files(first, html, check_report_siblings(html))
+    assert first["since_last"] is None and (tmp_path / "r.csv").read_text().count("\n") == 2
+    second = tr.triage(batch({"s1": shift_prior(clean_doc, 30_000), "s2": clean_doc}))
+    write_report_files(second, html, check_report_siblings(html))
+    assert second["since_last"] == {"new": ["s1"], "resolved": ["s2"], "changed": []}
+    assert "Since the last report" in html.read_text() and "no longer flagged" in html.read_text()
+    for name, text in (("r.csv", "a,b\n1,2\n"), ("r.json", '{"mine": 1}')):
+        other = tmp_path / "other"
+        other.mkdir(exist_ok=True)
+        (other / name).write_text(text)
+        with pytest.raises(NotOursError, match=name.replace(".", r"\.")):
+            check_report_siblings(other / "r.html")
+        assert (other / name).read_text() == text
+        (other / name).unlink()
+

@@ -83,7 +83,11 @@ def _files(folder: Path) -> dict:
 def test_the_report_ranks_wrong_scenes_by_cause_and_refine_apply_clears_them(triage_dataset, tmp_path):
     root = triage_dataset
     right_before = _files(root / "a_right")
-    doc = _report(root, tmp_path / "before.html")
+    doc = _report(root, tmp_path / "report.html")
+    assert doc["since_last"] is None
+    rows = (tmp_path / "report.csv").read_text().splitlines()
+    assert rows[0] == "rank,scene,severity,cause,reasons,next" and len(rows) == 1 + len(doc["scenes_ranked"])
+    assert rows[1].startswith("1,e_broken,100.000,failed,")
     ranked = {e["scene"]: e for e in doc["scenes_ranked"]}
     print(json.dumps(doc["scenes_ranked"], indent=1))
     assert "a_right" not in ranked and not doc["scenes"]["a_right"]["flags"]
@@ -102,8 +106,10 @@ def test_the_report_ranks_wrong_scenes_by_cause_and_refine_apply_clears_them(tri
 
     r = _evpose("dataset", "refine", root, "--apply", "--windows", "16", "--workers", "2", "--json", "-q")
     assert r.returncode == 3, r.stderr
-    after = _report(root, tmp_path / "after.html")
+    after = _report(root, tmp_path / "report.html")                # the same --out: compared with the last one
     left = {e["scene"] for e in after["scenes_ranked"]}
+    assert {"b_clock", "c_pose"} <= set(after["since_last"]["resolved"]) and after["since_last"]["new"] == []
+    assert json.loads((tmp_path / "report.json").read_text())["since_last"] == after["since_last"]
     assert "b_clock" not in left and "c_pose" not in left, after["scenes_ranked"]
     assert "e_broken" in left and "a_right" not in left
     assert _files(root / "a_right") == right_before                  # nothing written into the right scene
