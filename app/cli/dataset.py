@@ -65,6 +65,24 @@ def _open_dataset(args):
     return Dataset.open(args.dataset)
 
 
+#: The worst causes of a report's scenes that each command can deal with (``--only-flagged``).
+FIXABLE = {"sync": ("clock", "skew", "clock_uncertain", "object"),
+           "refine": ("clock", "skew", "clock_uncertain", "object", "pose", "mounting")}
+
+
+def _flagged(args, ds):
+    """``ds``, or with ``--only-flagged REPORT.json`` the scenes that report ranks for a cause this command fixes."""
+    if not getattr(args, "only_flagged", None):
+        return ds
+    from evpose.core.dataset.report_files import flagged_scenes
+
+    names = [n for n in flagged_scenes(args.only_flagged, FIXABLE[args.action]) if n in {r.name for r in ds.scenes}]
+    if not names and not args.quiet:
+        print(f"evpose dataset {args.action}: {args.only_flagged} flags no scene of {ds.root} for "
+              f"{' / '.join(FIXABLE[args.action])}: nothing to do", file=sys.stderr)
+    return ds.only(names)
+
+
 def _map(args, ds, task, *task_args, label: str):
     """``task`` over every scene of ``ds`` on the cluster of ``args``; unreadable scenes failed for their reason."""
     from evpose.core.dataset.batch import map_scenes
@@ -92,7 +110,7 @@ def cmd_sync(args) -> int:
     from evpose.core.dataset.tasks import sync_task
 
     check_sync_args(args)
-    result = _map(args, _open_dataset(args), sync_task, sync_options(args), label="sync")
+    result = _map(args, _flagged(args, _open_dataset(args)), sync_task, sync_options(args), label="sync")
 
     def offset(d):
         return "-" if d.get("offset_us") is None else str(d["offset_us"])
@@ -120,7 +138,7 @@ def cmd_refine(args) -> int:
 
     check_windows(args)
     opts = JointRunOptions(clock=not args.no_clock, hand_eye=args.hand_eye, windows=args.windows, apply=args.apply)
-    result = _map(args, _open_dataset(args), refine_task, opts, label="refine")
+    result = _map(args, _flagged(args, _open_dataset(args)), refine_task, opts, label="refine")
 
     def verdict(d):
         if not d.get("accepted"):
@@ -262,6 +280,8 @@ def add_dataset_parser(subparsers) -> None:
     p.add_argument("--range-ms", type=float, default=500.0, help="search range around the clock in effect (ms)")
     p.add_argument("--bin-us", type=int, default=1000, help="event-rate bin (multiple of 1000 us)")
     p.add_argument("--windows", type=int, default=24, help="event windows used by --edges")
+    p.add_argument("--only-flagged", metavar="REPORT.json", help="only the scenes that report (dataset report's JSON) "
+                   "ranks for the clock or low scores")
     p.set_defaults(baseline=False, curve=False)
     _cluster_args(p)
     p.set_defaults(func=cmd_sync)
@@ -274,6 +294,8 @@ def add_dataset_parser(subparsers) -> None:
     p.add_argument("--hand-eye", action="store_true", help="fit a hand-eye correction too")
     p.add_argument("--no-clock", action="store_true", help="keep each scene's clock")
     p.add_argument("--windows", type=int, default=24, help="event windows of each fit")
+    p.add_argument("--only-flagged", metavar="REPORT.json", help="only the scenes that report (dataset report's JSON) "
+                   "ranks for the clock, a pose, the mounting or low scores")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--dry-run", action="store_true", help="print what --apply would store (the default)")
     g.add_argument("--apply", action="store_true", help="store each scene's changes beyond their sigma as one undo "

@@ -93,6 +93,16 @@ class Dataset:
             raise DatasetError(f"{path}: not a dataset: no {DATASET_FILENAME} and no subfolder holds a {SCENE_FILENAME}")
         return cls(path.resolve(), path.resolve().name, scenes)
 
+    def only(self, names) -> "Dataset":
+        """The same dataset with only the scenes named (in dataset order); an unknown name is refused."""
+        names = list(names)
+        known = {ref.name for ref in self.scenes}
+        for n in names:
+            if n not in known:
+                raise DatasetError(f"{self.root}: no scene named {n!r}")
+        return Dataset(self.root, self.name, [ref for ref in self.scenes if ref.name in set(names)], self.defaults,
+                       self.source)
+
     def scene(self, name: str) -> SceneRef:
         for ref in self.scenes:
             if ref.name == name:

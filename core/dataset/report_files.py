@@ -18,7 +18,8 @@ from evpose.core.data.atomic import AtomicBatch
 from evpose.core.data.json_values import to_jsonable
 from evpose.core.errors import NotOursError
 
-__all__ = ["CSV_HEADER", "check_report_siblings", "ranking_csv", "since_last", "sibling_paths", "write_report_files"]
+__all__ = ["CSV_HEADER", "check_report_siblings", "flagged_scenes", "ranking_csv", "since_last", "sibling_paths",
+           "write_report_files"]
 
 CSV_HEADER = ["rank", "scene", "severity", "cause", "reasons", "next"]
 
@@ -99,3 +100,15 @@ def write_report_files(doc: dict, html, previous: dict | None = None) -> Path:
         batch.add(csv_path, ranking_csv(doc).encode("utf-8"))
         batch.add(json_path, (json.dumps(doc, indent=1, sort_keys=True, default=to_jsonable) + "\n").encode("utf-8"))
     return html
+
+
+def flagged_scenes(report_json, causes=None) -> list[str]:
+    """The scenes a previous report (its ``REPORT.json``, which evpose wrote) ranks to fix, worst first; with
+    ``causes`` only those whose worst cause is one of them. A missing or foreign file is refused in one line."""
+    path = Path(report_json)
+    if not path.is_file():
+        raise NotOursError(f"{path}: --only-flagged: no such report (the REPORT.json that evpose dataset report wrote "
+                           "beside its HTML)")
+    doc = _ours_json(path)
+    return [e["scene"] for e in doc.get("scenes_ranked") or [] if causes is None or e["cause"] in causes]
+

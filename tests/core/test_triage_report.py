@@ -377,6 +377,11 @@ def test_report_files_replace_only_their_own_siblings_and_record_what_changed(cl
     write_report_files(second, html, check_report_siblings(html))
     assert second["since_last"] == {"new": ["s1"], "resolved": ["s2"], "changed": []}
     assert "Since the last report" in html.read_text() and "no longer flagged" in html.read_text()
+    from evpose.core.dataset.report_files import flagged_scenes
+
+    assert flagged_scenes(tmp_path / "r.json") == ["s1"] and flagged_scenes(tmp_path / "r.json", ("pose",)) == []
+    with pytest.raises(NotOursError, match="no such report"):
+        flagged_scenes(tmp_path / "missing.json")
     for name, text in (("r.csv", "a,b\n1,2\n"), ("r.json", '{"mine": 1}')):
         other = tmp_path / "other"
         other.mkdir(exist_ok=True)
