@@ -90,13 +90,21 @@ def _since_last(doc: dict) -> str:
 
 
 def _scenes_first(doc: dict, ids: dict) -> str:
-    """The scenes to fix, worst first: each with its cause, its reasons and the command to run next."""
+    """The scenes to fix, worst first: each with its cause, its reasons, the worst window of its first flagged
+    object drawn small, and the command to run next."""
     rows = []
+    recs = {r["name"]: r for r in doc["scenes"]}
     for e in doc.get("scenes_ranked", []):
         reasons = "".join(f"<li>{_e(x)}</li>" for x in e["reasons"])
+        thumbs = recs[e["scene"]].get("thumbnails") or {}
+        mini = ""
+        if thumbs:
+            name, th = next(iter(thumbs.items()))
+            mini = (f'<img class="mini" alt="{_e(name)}: window {th["window"]}" title="{_e(name)}: its worst window '
+                    f'({th["window"]})" src="data:image/png;base64,{th["png_b64"]}">')
         rows.append(f'<li><span class="{_sev_class(e["cause"], e["severity"])}" title="severity">'
                     f'{e["severity"]:.1f}</span><a href="#{ids[e["scene"]]}" class="scene">{_e(e["scene"])}</a>'
-                    f'<span class="tag">{_e(e["cause"])}</span><ul class="reasons">{reasons}</ul>'
+                    f'<span class="tag">{_e(e["cause"])}</span><ul class="reasons">{reasons}</ul>{mini}'
                     f'<code class="next" title="the next command">{_e(e["next"])}</code></li>')
     body = f'<ol class="scenes-first">{"".join(rows)}</ol>' if rows else '<p class="ok">Nothing flagged.</p>'
     return f'<section id="scenes-first"><h2>Fix these scenes first</h2>{_since_last(doc)}{body}</section>'
@@ -192,7 +200,18 @@ def _scene_section(r: dict, sid: str, t: dict) -> str:
     path = f'<p class="path">{_e(r["path"])}</p>' if r.get("path") else ""
     box, table = _objects(r, t)
     return (f'<section class="scene" id="{sid}">{head}{path}<div class="top"><div>{_facts(r)}{flags}</div>{box}</div>'
-            f'{table}</section>')
+            f'{_thumbs(r)}{table}</section>')
+
+
+def _thumbs(r: dict) -> str:
+    """The flagged objects' worst windows: event frame (ON red, OFF blue) with every object's contour."""
+    figs = []
+    for name, th in (r.get("thumbnails") or {}).items():
+        figs.append(f'<figure class="thumb"><img alt="{_e(name)}: window {th["window"]}" '
+                    f'src="data:image/png;base64,{th["png_b64"]}"><figcaption>{_e(name)}: window {th["window"]}, '
+                    f'{_e(_t_rel(r, th["t_label_us"]))} (its worst; events ON red, OFF blue; contours of the labels, '
+                    f'{_e(name)} thick)</figcaption></figure>')
+    return f'<div class="thumbs">{"".join(figs)}</div>' if figs else ""
 
 
 def _facts(r: dict) -> str:

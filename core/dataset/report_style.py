@@ -24,10 +24,14 @@ a.scene{font-weight:600;color:var(--acc);text-decoration:none}
 a{color:var(--acc)}
 .tag{background:#eef2ff;color:#3730a3;border-radius:4px;padding:0 6px;font-size:12px}
 .reason{flex:1}
-ol.scenes-first>li{flex-wrap:wrap}
+ol.scenes-first>li{flex-wrap:wrap;align-items:flex-start}
 ul.reasons{flex:1;margin:0;padding-left:18px;min-width:280px}
 ul.reasons li{padding:1px 0}
-p.since{margin:0 0 8px;color:var(--dim)}p.since ul{margin:2px 0 0;padding-left:18px}
+p.since{margin:0 0 8px;color:var(--dim)}
+img.mini{width:173px;image-rendering:pixelated;border:1px solid var(--line)}
+div.thumbs{display:flex;flex-wrap:wrap;gap:12px;margin:8px 0}
+figure.thumb{margin:0;max-width:360px}figure.thumb img{width:346px;image-rendering:pixelated;border:1px solid var(--line)}
+figure.thumb figcaption{font-size:12px;color:var(--dim)}p.since ul{margin:2px 0 0;padding-left:18px}
 code.next{flex-basis:100%;margin-left:30px;font-size:12px;color:var(--dim);word-break:break-all}
 .sev{display:inline-block;min-width:44px;text-align:center;border-radius:4px;padding:0 4px;font-size:12px;
 font-weight:700;color:#fff;font-variant-numeric:tabular-nums}

@@ -85,14 +85,19 @@ def review_progress(scene, window_us: int = TRIAGE_WINDOW_US, windows=None) -> d
 
 def triage_task(path: str, defaults, sync_opts, window_us: int = TRIAGE_WINDOW_US) -> dict:
     """What the triage report needs of one scene: ``info``, ``sync`` (the rate estimate, never applied),
-    ``score`` (per-object summary and per-window scores) and ``review`` (:func:`review_progress`)."""
+    ``score`` (per-object summary and per-window scores), ``review`` (:func:`review_progress`) and ``thumbnails``
+    (each object's worst window drawn: :func:`evpose.core.dataset.thumbnails.worst_window_thumbnails`)."""
     from dataclasses import replace
 
     from evpose.core.align.score_table import score_windows
     from evpose.core.align.sync_run import run_sync
     from evpose.core.data.scene_summary import scene_info
 
+    from evpose.core.dataset.thumbnails import worst_window_thumbnails
+
     with _scene(path, defaults) as scene:
+        score = score_windows(scene, window_us=window_us).to_json()
         doc = {"info": scene_info(scene), "sync": run_sync(scene, replace(sync_opts, apply=False)).data,
-               "score": score_windows(scene, window_us=window_us).to_json(), "review": review_progress(scene, window_us)}
+               "score": score, "review": review_progress(scene, window_us),
+               "thumbnails": worst_window_thumbnails(scene, plain(score))}
     return plain(doc)

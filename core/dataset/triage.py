@@ -176,6 +176,7 @@ def _failed_record(name: str, error: str, path: str | None = None) -> dict:
     return {"name": name, "status": "failed", "error": error, "path": path, "n_events": None, "duration_s": None,
             "t0_us": None,
             "objects": [], "windows": None, "clock": None, "scores": {}, "review": None, "verdicts": {},
+            "thumbnails": {},
             "flags": [_flag("failed", SEVERITY_FAILED, f"failed: {error}")]}
 
 
@@ -200,6 +201,8 @@ def _scene_record(name: str, doc: dict) -> dict:
     cause_sev = [f["severity"] for f in clock_flags + verdicts if f["kind"] in ("clock", "skew", "mounting")]
     score_flags = [f for f in _object_flags(scores, max(cause_sev, default=None)) if f["object"] not in rec["verdicts"]]
     rec["flags"] = clock_flags + verdicts + _unlabeled_flags(windows) + score_flags
+    flagged = {f["object"] for f in rec["flags"] if f["object"]}
+    rec["thumbnails"] = {n: th for n, th in (doc.get("thumbnails") or {}).items() if n in flagged}
     return rec
 
 

@@ -97,6 +97,23 @@ def doc(tiny_scene_dir, tmp_path_factory):
     return report_doc(shift_prior(clean, clean["sync"]["offset_us"] - clean["info"]["clock"]["prior_offset_us"]))
 
 
+def _check_thumbnail(uri: str, doc: dict) -> None:
+    """A thumbnail is the scene's event frame with a label contour in an object's colour on it."""
+    import base64
+
+    import cv2
+    import numpy as np
+
+    from evpose.core.label.overlay import PALETTE
+
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(uri.split(",", 1)[1]), np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+    rec = next(r for r in doc["scenes"] if r.get("thumbnails"))
+    assert img.shape == (130, 173, 3)                                    # the scene's camera, half DAVIS346
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    assert colours & set(PALETTE), rec["name"]                             # a contour
+    assert colours & {(255, 0, 0), (0, 0, 255), (255, 0, 255)}, rec["name"]   # events
+
+
 def test_report_is_self_contained_and_escaped(doc, tmp_path):
     out = write_report(doc, tmp_path / "report.html")
     assert out == tmp_path / "report.html" and sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]
@@ -107,8 +124,11 @@ def test_report_is_self_contained_and_escaped(doc, tmp_path):
     assert "(&lt;truncated&gt;)" in text
     dom = DomSummary()
     dom.feed(text)
-    assert not ({"img", "link", "iframe", "object", "embed"} & dom.tags)
-    assert all(v.startswith("#") for _, _, v in dom.refs)
+    assert not ({"link", "iframe", "object", "embed"} & dom.tags)
+    images = [v for tag, k, v in dom.refs if tag == "img"]
+    assert all(v.startswith("#") for tag, _, v in dom.refs if tag != "img")
+    assert images and all(v.startswith("data:image/png;base64,") for v in images)     # inline, nothing fetched
+    _check_thumbnail(images[0], doc)
     assert len(dom.ranked) == len(doc["ranked"]) == 3
     assert [s[1].rsplit(" ", 2)[0] if not s[1].endswith("failed") else s[1].rsplit(" ", 1)[0]
             for s in dom.sections] == [r["name"] for r in doc["scenes"]]
