@@ -172,6 +172,10 @@ def cmd_report(args) -> int:
     from evpose.core.dataset.tasks import triage_task
     from evpose.core.dataset.triage import triage
 
+    if args.edges:
+        from evpose.app.cli.estimates import check_windows
+
+        check_windows(args)
     ds = _open_dataset(args)
     check_out_path(args.out, "file", ds.input_folders(args.out))        # before minutes of work, and never a device
     for sibling in (Path(args.out).with_suffix(".csv"), Path(args.out).with_suffix(".json")):

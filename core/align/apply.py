@@ -31,6 +31,11 @@ def _beyond(change: float, std, k: float = APPLY_SIGMAS) -> bool:
     return std is not None and math.isfinite(std) and std > 0 and abs(change) > k * std
 
 
+def _num(x, scale: float, digits: int) -> str:
+    """``x * scale`` with ``digits`` decimals; "n/a" for None."""
+    return "n/a" if x is None else f"{x * scale:.{digits}f}"
+
+
 def clock_differs(scene, offset_us, skew_ppm, offset_std_us, skew_std_ppm=None) -> bool:
     """Whether an estimated clock (totals: ``offset_us`` at the first event, ``skew_ppm`` or None when not
     estimated) differs from the clock in effect of ``scene`` by more than :data:`APPLY_SIGMAS` of its standard
@@ -102,11 +107,11 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
         now = scene.clock
         if clock_differs(scene, result.offset_us, skew, result.offset_std_us, result.skew_std_ppm):
             d_us = float(result.offset_us - now.offset_us)
-            text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {result.offset_std_us / 1e3:.3f})"
+            text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {_num(result.offset_std_us, 1e-3, 3)})"
             vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(result.offset_us),
                     "offset_change_us": d_us, "offset_std_us": result.offset_std_us}
             if skew is not None:
-                text += f", skew {now.skew_ppm:+.1f} -> {skew:+.1f} ppm (+- {result.skew_std_ppm:.1f})"
+                text += f", skew {now.skew_ppm:+.1f} -> {skew:+.1f} ppm (+- {_num(result.skew_std_ppm, 1.0, 1)})"
                 vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(skew),
                             skew_std_ppm=result.skew_std_ppm)
 
@@ -177,7 +182,7 @@ def plan_sync(scene, result: SyncResult) -> list:
     d_us = float(result.offset_us - now.offset_us)
     vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(result.offset_us), "offset_change_us": d_us,
             "offset_std_us": result.offset_std_us}
-    text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {result.offset_std_us / 1e3:.3f})"
+    text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {_num(result.offset_std_us, 1e-3, 3)})"
     if result.skew_ppm is not None:
         vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(result.skew_ppm), skew_std_ppm=skew_std)
         text += f", skew {now.skew_ppm:+.1f} -> {result.skew_ppm:+.1f} ppm"
