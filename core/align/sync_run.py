@@ -117,6 +117,11 @@ MOUNTING_TRIGGER_STD_US = 120.0
 #: this many of its standard errors (each is the root sum of three axes' variances, so 3 is far in the tail: under no
 #: error ``|d|^2 / std^2`` is about chi-square(3) / 3, beyond 9 with probability ~6e-6).
 MOUNTING_SIGMAS = 3.0
+#: A mounting *shift* is judged only when the camera turns by at least this much (degrees) over the recording: a
+#: camera that keeps its orientation sees a shifted mounting exactly as every object shifted alike (only the prior on
+#: the objects decides between them), so only the mounting's rotation is judged then (a false alarm on a
+#: translating validation scene had the hand-eye take up the objects' own pose errors).
+MOUNTING_MIN_TURN_DEG = 5.0
 
 
 def edge_stage(scene, rate, n_windows: int, *, progress=None, cancel=None, mounting: bool = True):
@@ -145,7 +150,24 @@ def edge_stage(scene, rate, n_windows: int, *, progress=None, cancel=None, mount
     alt = refine_joint(scene, params=JointParams(n_windows=n_windows, hand_eye=True), clock=rate.clock(),
                        progress=halves[1], cancel=cancel)
     _check_range(alt, rate)
-    return mounting_check(res, alt)
+    return mounting_check(res, alt, turns=camera_turn_deg(scene, rate.clock()) >= MOUNTING_MIN_TURN_DEG)
+
+
+def camera_turn_deg(scene, clock=None, n: int = 200) -> float:
+    """How far the camera turns over the recording (degrees): the largest angle between its orientation at ``n``
+    times over the events and their mean orientation."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    ev = scene.events
+    if ev.t_first_us is None or ev.t_last_us <= ev.t_first_us:
+        return 0.0
+    t = np.linspace(ev.t_first_us, ev.t_last_us, n).astype(np.int64)
+    T, ok = scene.T_base_cam(t, clock=clock)
+    if not np.any(ok):
+        return 0.0
+    R = Rotation.from_matrix(np.asarray(T)[ok][:, :3, :3])
+    return float(np.degrees(np.max((R.mean().inv() * R).magnitude())))
 
 
 def mounting_suspected(res) -> bool:
@@ -157,21 +179,26 @@ def mounting_suspected(res) -> bool:
     return std is not None and (not math.isfinite(std) or std > MOUNTING_TRIGGER_STD_US)
 
 
-def mounting_check(res, alt):
+def mounting_check(res, alt, turns: bool = True):
     """Of a clock-and-poses fit ``res`` and the same fit with the hand-eye free ``alt``, the one to believe: ``alt``
     when it was accepted and its hand-eye change is beyond :data:`MOUNTING_SIGMAS` of its standard errors (a note on
     it says by how much the mounting looks off, and what the first fit made of it), else ``res`` (with a note when
-    ``alt`` saw no mounting error)."""
+    ``alt`` saw no mounting error). ``turns``: the camera turns over the recording
+    (:data:`MOUNTING_MIN_TURN_DEG`); when it does not, only the hand-eye's rotation is judged."""
     def ratio(change, std):
         return change / std if std and math.isfinite(std) and std > 0 else 0.0
 
-    z = max(ratio(alt.hand_eye_dt_mm, alt.hand_eye_std_mm), ratio(alt.hand_eye_dR_deg, alt.hand_eye_std_deg))
+    z_rot = ratio(alt.hand_eye_dR_deg, alt.hand_eye_std_deg)
+    z = max(ratio(alt.hand_eye_dt_mm, alt.hand_eye_std_mm), z_rot) if turns else z_rot
+    caveat = ([] if turns else ["mounting check: the camera does not turn over the recording, so a mounting shift "
+                                "looks exactly like every object shifted alike; only the mounting's rotation is judged"])
     seen = (f"{alt.hand_eye_dt_mm:.2f} +- {alt.hand_eye_std_mm or float('nan'):.2f} mm, "
             f"{alt.hand_eye_dR_deg:.3f} +- {alt.hand_eye_std_deg or float('nan'):.3f} deg")
     if alt.accepted and z > MOUNTING_SIGMAS and len(alt.objects) < MOUNTING_MIN_OBJECTS:
         res.notes.append(f"mounting check: a hand-eye change of {seen} would explain the events, but with "
                          f"{len(alt.objects)} object fitted a camera-mounting error and that object's pose error move "
                          "its edges alike; nothing concluded (the mounting shows on two or more objects)")
+        res.notes.extend(caveat)
         return res
     if alt.accepted and z > MOUNTING_SIGMAS:
         first = (f"clock {res.offset_us / 1000:+.3f} ms" + (f", skew {res.skew_ppm:+.0f} ppm" if res.skew_estimated
@@ -179,9 +206,11 @@ def mounting_check(res, alt):
         alt.notes.insert(0, f"the camera mounting (hand-eye) looks off by {seen} ({z:.1f} sigma): clock, hand-eye "
                             f"and poses were fitted together (without the hand-eye the fit gave {first}); "
                             "store the hand-eye with Accept in the app or `evpose refine --joint --hand-eye --apply`")
+        alt.notes.extend(caveat)
         return alt
     res.notes.append(f"mounting check: no camera-mounting error seen (hand-eye {seen}, {z:.1f} sigma)"
                      if alt.accepted else f"mounting check: the fit with the hand-eye free was refused ({alt.reason})")
+    res.notes.extend(caveat)
     return res
 
 

@@ -391,3 +391,31 @@ def test_mounting_check_takes_the_hand_eye_fit_only_when_significant():
     # one object: its own pose error and a mounting error look alike, nothing is concluded
     first, alt = _fake_result(n_obj=1), _fake_result(he=True, dt_mm=10.0, n_obj=sync_run.MOUNTING_MIN_OBJECTS - 1)
     assert sync_run.mounting_check(first, alt) is first and "nothing concluded" in first.notes[-1]
+    # a camera that does not turn: a mounting shift is every object shifted alike; only its rotation is judged
+    first, alt = _fake_result(), _fake_result(he=True, dt_mm=(k + 1) * 0.2)
+    assert sync_run.mounting_check(first, alt, turns=False) is first and "does not turn" in first.notes[-1]
+    first, alt = _fake_result(), _fake_result(he=True, dt_mm=10.0, dR_deg=(k + 1) * 0.05)
+    assert sync_run.mounting_check(first, alt, turns=False) is alt and "does not turn" in alt.notes[-1]
+
+
+def test_how_far_the_camera_turns(mounted, tmp_path):
+    """Trajectory B turns the camera to look at the objects; the same recording with every recorded orientation
+    replaced by the first one does not turn."""
+    import csv
+
+    from evpose.core.align import sync_run
+
+    with Scene.open(mounted) as scene:
+        assert sync_run.camera_turn_deg(scene) > sync_run.MOUNTING_MIN_TURN_DEG
+    still = tmp_path / "still"
+    shutil.copytree(mounted, still)
+    rows = list(csv.reader((still / "trajectory.csv").read_text().splitlines()))
+    head, body = rows[0], rows[1:]
+    q = [i for i, h in enumerate(head) if h.strip() in ("qx", "qy", "qz", "qw")]
+    assert len(q) == 4, head
+    for r in body:
+        for i in q:
+            r[i] = body[0][i]
+    (still / "trajectory.csv").write_text("\n".join(",".join(r) for r in [head, *body]) + "\n")
+    with Scene.open(still) as scene:
+        assert sync_run.camera_turn_deg(scene) < 1e-6
