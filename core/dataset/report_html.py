@@ -238,6 +238,9 @@ def _facts(r: dict) -> str:
              ("Review", f"{rv.get('verified_windows', 0)} of {rv.get('n_windows', 0)} windows verified "
                         f"({_pct(frac)}), {rv.get('touched_not_verified', 0)} partly verified, mixed or stale; "
                         f"marks: {marks}")]
+    for name, la in (r.get("looked_at") or {}).items():
+        items.append(("Looked at, fine", f"{name}: its worst window {la['window']} verified in review"
+                                          + (f" ({la['note']})" if la.get("note") else "")))
     dl = "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in items)
     bar = f'<div class="progress" title="verified"><div style="width:{100 * frac:.1f}%"></div></div>'
     return f'<dl class="facts">{dl}</dl>{bar}'

@@ -11,7 +11,8 @@ from contextlib import contextmanager
 
 from evpose.core.data.json_values import plain
 
-__all__ = ["info_task", "sync_task", "refine_task", "score_task", "review_progress", "triage_task", "TRIAGE_WINDOW_US"]
+__all__ = ["info_task", "sync_task", "refine_task", "score_task", "review_progress", "looked_at", "triage_task",
+           "TRIAGE_WINDOW_US"]
 
 #: Window length of the triage scores and review progress (the export default).
 TRIAGE_WINDOW_US = 10_000
@@ -83,6 +84,34 @@ def review_progress(scene, window_us: int = TRIAGE_WINDOW_US, windows=None) -> d
             "touched_not_verified": int(np.count_nonzero(touched & ~keep)), "marks": statuses}
 
 
+def looked_at(scene, score: dict, window_us: int = TRIAGE_WINDOW_US) -> dict:
+    """Objects whose worst window (:func:`evpose.core.dataset.triage_scores.object_scores`) a person verified in
+    review with a mark that is still fresh (made on the poses and clock in effect now): ``{name: {"window", "note"}}``.
+    The triage reports them as "looked at, fine" instead of flagging their low scores again; a correction stored
+    since makes the mark stale and the flag comes back."""
+    from evpose.core.dataset.triage_scores import object_scores
+    from evpose.core.export.windows import build_windows, review_usage, scene_staleness
+
+    reviews = scene.corrections.reviews
+    if not reviews:
+        return {}
+    windows = build_windows(scene.events, window_us=window_us)
+    stale = scene_staleness(scene)
+    out = {}
+    for name in scene.object_names:
+        worst = object_scores(score, name)["worst"]
+        if not worst:
+            continue
+        idx = int(worst[0]["index"])
+        keep, _, _ = review_usage(windows[idx:idx + 1], reviews, [name], stale)
+        if keep[0]:
+            w = windows[idx]
+            notes = [m.note for m in reviews if m.note and m.status == "verified" and m.object in (None, name)
+                     and m.t0_us < w.t1_us and m.t1_us > w.t0_us]
+            out[name] = {"window": idx, "note": "; ".join(notes)}
+    return out
+
+
 def triage_task(path: str, defaults, sync_opts, window_us: int = TRIAGE_WINDOW_US) -> dict:
     """What the triage report needs of one scene: ``info``, ``sync`` (the rate estimate, never applied),
     ``score`` (per-object summary and per-window scores), ``review`` (:func:`review_progress`) and ``thumbnails``
@@ -99,5 +128,6 @@ def triage_task(path: str, defaults, sync_opts, window_us: int = TRIAGE_WINDOW_U
         score = score_windows(scene, window_us=window_us).to_json()
         doc = {"info": scene_info(scene), "sync": run_sync(scene, replace(sync_opts, apply=False)).data,
                "score": score, "review": review_progress(scene, window_us),
-               "thumbnails": worst_window_thumbnails(scene, plain(score))}
+               "thumbnails": worst_window_thumbnails(scene, plain(score)),
+               "looked_at": looked_at(scene, plain(score), window_us)}
     return plain(doc)

@@ -25,6 +25,10 @@ What is flagged (thresholds are the module constants, echoed in the document's `
   object's low scores (the score flag folds under it); the scores of every object fold under a flagged clock or
   mounting (they rank below it and say to fix that first).
 
+An object whose worst window a person verified in review (a mark still fresh: made on the poses and clock in
+effect) is "looked at, fine" (``looked_at``, with the mark's note): its low scores are not flagged again until a
+correction makes the mark stale.
+
 Besides the flat list of flags, ``scenes_ranked`` ranks the scenes (worst flag first), each with its reasons in
 order and the next command to run.
 
@@ -176,7 +180,7 @@ def _failed_record(name: str, error: str, path: str | None = None) -> dict:
     return {"name": name, "status": "failed", "error": error, "path": path, "n_events": None, "duration_s": None,
             "t0_us": None,
             "objects": [], "windows": None, "clock": None, "scores": {}, "review": None, "verdicts": {},
-            "thumbnails": {},
+            "thumbnails": {}, "looked_at": {},
             "flags": [_flag("failed", SEVERITY_FAILED, f"failed: {error}")]}
 
 
@@ -199,7 +203,9 @@ def _scene_record(name: str, doc: dict) -> dict:
     verdicts = _verdict_flags(sync)
     rec["verdicts"] = {f["object"]: f["reason"] for f in verdicts if f["kind"] == "pose"}
     cause_sev = [f["severity"] for f in clock_flags + verdicts if f["kind"] in ("clock", "skew", "mounting")]
-    score_flags = [f for f in _object_flags(scores, max(cause_sev, default=None)) if f["object"] not in rec["verdicts"]]
+    rec["looked_at"] = dict(doc.get("looked_at") or {})          # worst windows a person verified: not flagged again
+    score_flags = [f for f in _object_flags(scores, max(cause_sev, default=None))
+                   if f["object"] not in rec["verdicts"] and f["object"] not in rec["looked_at"]]
     rec["flags"] = clock_flags + verdicts + _unlabeled_flags(windows) + score_flags
     flagged = {f["object"] for f in rec["flags"] if f["object"]}
     rec["thumbnails"] = {n: th for n, th in (doc.get("thumbnails") or {}).items() if n in flagged}

@@ -391,3 +391,40 @@ def test_report_files_replace_only_their_own_siblings_and_record_what_changed(cl
         assert (other / name).read_text() == text
         (other / name).unlink()
 
+
+
+def test_a_worst_window_verified_in_review_is_looked_at_until_a_correction_makes_the_mark_stale(tiny_scene_dir,
+                                                                                                tmp_path):
+    """Issue 24.3: the object flagged for low scores, its worst window verified in review with a note (a person
+    looked and it is fine) -> reported as "looked at, fine" with the note, not flagged; after a correction of its
+    pose the mark is stale and the flag is back."""
+    import numpy as np
+
+    from evpose.core.data.geometry import make_T
+    from evpose.core.data.scene import Scene
+    from evpose.core.dataset.report_html import render_report
+    from evpose.core.document.estimates import apply_pose_estimate
+    from evpose.core.document.history import History
+    from evpose.core.document.review import ReviewMark, mark_state
+
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(tiny_scene_dir, scene_dir)
+    before = tr.triage(batch({"s": run_triage_task(scene_dir)}))
+    flagged = [f["object"] for f in scene_rec(before, "s")["flags"] if f["kind"] == "object"]
+    assert flagged
+    name = flagged[0]
+    with Scene.open(scene_dir) as scene:
+        t0, t1 = scene.events.t_first_us, scene.events.t_last_us + 1
+        mark = ReviewMark(t0, t1, "verified", "motion blur, label fine", name, mark_state(scene, name))
+        scene.corrections.set(("reviews",), [mark])
+        scene.save_corrections()
+    after = tr.triage(batch({"s": run_triage_task(scene_dir)}))
+    rec = scene_rec(after, "s")
+    assert name in rec["looked_at"] and rec["looked_at"][name]["note"] == "motion blur, label fine"
+    assert name not in [f["object"] for f in rec["flags"] if f["kind"] == "object"]
+    assert "Looked at, fine" in render_report(after)
+    with Scene.open(scene_dir) as scene:                        # a pose correction: the verified look is stale
+        apply_pose_estimate(History(scene.corrections), name, make_T(np.eye(3), [0.002, 0.0, 0.0]), "nudge")
+        scene.save_corrections()
+    again = scene_rec(tr.triage(batch({"s": run_triage_task(scene_dir)})), "s")
+    assert name not in again["looked_at"] and name in [f["object"] for f in again["flags"] if f["kind"] == "object"]
