@@ -2,8 +2,8 @@
 drawn as a header, the scenes to fix first (with what changed since the last report), every flag ranked, an overview of every scene (table, clock and
 unlabeled-share plots) and one section per scene (facts, flags, score distributions, worst windows).
 
-No network: the CSS is inline, the plots are inline SVG (:mod:`evpose.core.dataset.svg_plots`), the only
-script sorts the overview table. Every text from the document is escaped.
+No network: the CSS is inline, the plots are inline SVG (:mod:`evpose.core.dataset.svg_plots`), the thumbnails
+inline PNG, the only script sorts and filters the overview table. Every text from the document is escaped.
 """
 from __future__ import annotations
 
@@ -144,8 +144,11 @@ def _overview(doc: dict, ids: dict) -> str:
                  f'<span class="key outside"></span> outside the trajectory; dashed: '
                  f'{_pct(t["max_unlabeled_share"])})</figcaption>'
                  f'{svg_plots.share_bars(share_rows, threshold=t["max_unlabeled_share"])}</figure></div>')
-    return (f'<section id="overview"><h2>Scenes</h2><table class="scenes sortable"><thead><tr>{th}</tr></thead>'
-            f'<tbody>{rows}</tbody></table>{plots}</section>')
+    tools = ('<div class="filter"><input type="search" id="scene-filter" placeholder="filter: scene name or flag text '
+             '(clock, pose, mounting, …)" aria-label="filter the scenes"><label><input type="checkbox" '
+             'id="flagged-only"> flagged only</label><span id="shown"></span></div>')
+    return (f'<section id="overview"><h2>Scenes</h2>{tools}<table class="scenes sortable filterable"><thead><tr>{th}'
+            f'</tr></thead><tbody>{rows}</tbody></table>{plots}</section>')
 
 
 def _cell(text, sort=None, cls="") -> str:
@@ -158,8 +161,10 @@ def _overview_row(r: dict, sid: str) -> str:
     name = f'<td data-sort="{_e(r["name"])}"><a href="#{sid}">{_e(r["name"])}</a></td>'
     nflags = len(r["flags"])
     flags = _cell(nflags, nflags, "num bad" if nflags else "num")
+    why = " | ".join(f'{f["kind"]}: {f["reason"]}' for f in r["flags"])
+    tr = f'<tr data-flags="{nflags}" data-reasons="{_e(why)}"'
     if r["status"] == "failed":
-        return f'<tr class="failed">{name}<td colspan="8" class="err">failed: {_e(r["error"])}</td>{flags}</tr>'
+        return f'{tr} class="failed">{name}<td colspan="8" class="err">failed: {_e(r["error"])}</td>{flags}</tr>'
     w, c, rv = r["windows"], r["clock"], r["review"]
     medians = [(s["quantiles"]["p50"], n) for n, s in r["scores"].items() if s["quantiles"]]
     low = min(medians) if medians else None
@@ -173,7 +178,7 @@ def _overview_row(r: dict, sid: str) -> str:
              _cell("–" if nsig is None else f"{nsig:.1f}", nsig, "num"),
              _cell("–" if low is None else f"{low[0]:.2f} ({low[1]})", None if low is None else low[0], "num"),
              _cell(_pct(verified), verified, "num")]
-    return f'<tr>{name}{"".join(cells)}{flags}</tr>'
+    return f'{tr}>{name}{"".join(cells)}{flags}</tr>'
 
 
 def _clock_row(r: dict) -> tuple:

@@ -29,6 +29,9 @@ ul.reasons{flex:1;margin:0;padding-left:18px;min-width:280px}
 ul.reasons li{padding:1px 0}
 p.since{margin:0 0 8px;color:var(--dim)}
 img.mini{width:173px;image-rendering:pixelated;border:1px solid var(--line)}
+div.filter{display:flex;gap:14px;align-items:center;margin:0 0 8px}
+div.filter input[type=search]{flex:0 1 420px;padding:4px 8px;border:1px solid var(--line);border-radius:6px}
+#shown{color:var(--dim);font-size:12px}
 div.thumbs{display:flex;flex-wrap:wrap;gap:12px;margin:8px 0}
 figure.thumb{margin:0;max-width:360px}figure.thumb img{width:346px;image-rendering:pixelated;border:1px solid var(--line)}
 figure.thumb figcaption{font-size:12px;color:var(--dim)}p.since ul{margin:2px 0 0;padding-left:18px}
@@ -93,4 +96,22 @@ document.querySelectorAll('table.sortable').forEach(function(t){
     });
   });
 });
+(function(){
+  var q=document.getElementById('scene-filter'),only=document.getElementById('flagged-only'),
+      shown=document.getElementById('shown');
+  if(!q)return;
+  function apply(){
+    var words=q.value.toLowerCase().split(/\s+/).filter(Boolean),n=0,all=0;
+    document.querySelectorAll('table.filterable tbody tr').forEach(function(r){
+      var text=(r.textContent+' '+(r.dataset.reasons||'')).toLowerCase(),ok=true;
+      words.forEach(function(w){if(text.indexOf(w)<0)ok=false;});
+      if(only.checked&&!(parseInt(r.dataset.flags||'0',10)>0))ok=false;
+      r.hidden=!ok;all++;if(ok)n++;
+    });
+    shown.textContent=(n===all)?'':n+' of '+all+' scenes shown';
+  }
+  var h=decodeURIComponent(location.hash||'');            // a link like report.html#filter=pose&flagged
+  if(h.indexOf('#filter=')===0){var p=h.slice(8).split('&');q.value=p[0];only.checked=p.indexOf('flagged')>0;}
+  q.addEventListener('input',apply);only.addEventListener('change',apply);apply();
+})();
 """

@@ -157,6 +157,29 @@ def test_report_rewrite_replaces_the_file(doc, tmp_path):
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed")
+def test_the_scene_table_filters_in_chromium(doc, tmp_path):
+    """The overview table's filter (plain JS, no network): a word of a flag's text or a scene name, and "flagged
+    only"; a link can carry both (report.html#filter=clock&flagged)."""
+    import re
+
+    html = write_report(doc, tmp_path / "report.html")
+
+    def shown(fragment: str) -> list:
+        res = chromium(["--dump-dom", html.as_uri() + fragment], tmp_path / "profile")
+        assert res.returncode == 0, res.stderr[-2000:]
+        body = res.stdout.split('class="scenes sortable filterable"', 1)[1].split("<tbody>", 1)[1].split("</tbody>")[0]
+        rows = re.findall(r"<tr([^>]*)>.*?<a href=\"#[^\"]+\">(.*?)</a>", body, flags=re.S)
+        return [name for attrs, name in rows if " hidden" not in attrs]
+
+    names = [r["name"] for r in doc["scenes"]]
+    assert len(shown("")) == len(names)
+    with_clock = [r["name"] for r in doc["scenes"] if any("clock" in f["kind"] + f["reason"] for f in r["flags"])]
+    assert shown("#filter=clock") == with_clock and "seq_clock" in with_clock
+    flagged = [r["name"] for r in doc["scenes"] if r["flags"]]
+    assert len(shown("#filter=&flagged")) == len(flagged) < len(names)
+    assert shown("#filter=seq_object") == ["seq_object"]
+
+
 def test_report_renders_in_chromium(doc, tmp_path):
     html = write_report(doc, tmp_path / "report.html")
     res = chromium(["--dump-dom", html.as_uri()], tmp_path / "profile")
