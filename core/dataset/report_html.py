@@ -96,7 +96,7 @@ def _scenes_first(doc: dict, ids: dict) -> str:
     recs = {r["name"]: r for r in doc["scenes"]}
     for e in doc.get("scenes_ranked", []):
         reasons = "".join(f"<li>{_e(x)}</li>" for x in e["reasons"])
-        thumbs = recs[e["scene"]].get("thumbnails") or {}
+        thumbs = {n: th for n, th in (recs[e["scene"]].get("thumbnails") or {}).items() if "png_b64" in th}
         mini = ""
         if thumbs:
             name, th = next(iter(thumbs.items()))
@@ -212,6 +212,10 @@ def _thumbs(r: dict) -> str:
     """The flagged objects' worst windows: event frame (ON red, OFF blue) with every object's contour."""
     figs = []
     for name, th in (r.get("thumbnails") or {}).items():
+        if "png_b64" not in th:
+            figs.append(f'<p class="thumb-missing">{_e(name)}: no picture of window {th["window"]} '
+                        f'({_e(th.get("error", ""))})</p>')
+            continue
         figs.append(f'<figure class="thumb"><img alt="{_e(name)}: window {th["window"]}" '
                     f'src="data:image/png;base64,{th["png_b64"]}"><figcaption>{_e(name)}: window {th["window"]}, '
                     f'{_e(_t_rel(r, th["t_label_us"]))} (its worst; events ON red, OFF blue; contours of the labels, '

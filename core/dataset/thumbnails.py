@@ -53,6 +53,12 @@ def worst_window_thumbnails(scene, score: dict) -> dict:
         if not worst:
             continue
         w = windows[int(worst[0]["index"])]
+        try:
+            png = window_thumbnail(scene, w, name)
+        except Exception as exc:         # a picture is not worth the scene's triage: say why it is missing
+            out[name] = {"window": int(w["index"]), "t_label_us": int(w["t_label_us"]),
+                         "error": f"{type(exc).__name__}: {exc}"}
+            continue
         out[name] = {"window": int(w["index"]), "t_label_us": int(w["t_label_us"]),
-                     "png_b64": base64.b64encode(window_thumbnail(scene, w, name)).decode("ascii")}
+                     "png_b64": base64.b64encode(png).decode("ascii")}
     return out

@@ -277,3 +277,14 @@ def main(argv) -> None:
 if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     main(sys.argv[1:])
+
+
+def test_a_thumbnail_that_cannot_be_drawn_is_named_not_fatal(doc):
+    """A scene whose worst window cannot be drawn keeps its triage; the report says which picture is missing and
+    why."""
+    bad = copy.deepcopy(doc)
+    rec = next(r for r in bad["scenes"] if r.get("thumbnails"))
+    name = next(iter(rec["thumbnails"]))
+    rec["thumbnails"][name] = {"window": 3, "t_label_us": rec["t0_us"], "error": "ValueError: <no poses>"}
+    html = render_report(bad)
+    assert f"{name}: no picture of window 3 (ValueError: &lt;no poses&gt;)" in html

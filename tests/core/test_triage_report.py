@@ -428,3 +428,30 @@ def test_a_worst_window_verified_in_review_is_looked_at_until_a_correction_makes
         scene.save_corrections()
     again = scene_rec(tr.triage(batch({"s": run_triage_task(scene_dir)})), "s")
     assert name not in again["looked_at"] and name in [f["object"] for f in again["flags"] if f["kind"] == "object"]
+
+
+def test_worst_window_thumbnails_draw_each_object_or_name_the_error(tiny_scene_dir, monkeypatch):
+    import base64
+
+    import cv2
+    import numpy as np
+
+    from evpose.core.align.score_table import score_windows
+    from evpose.core.data.json_values import plain
+    from evpose.core.data.scene import Scene
+    from evpose.core.dataset import thumbnails
+
+    with Scene.open(tiny_scene_dir) as scene:
+        score = plain(score_windows(scene, window_us=10_000).to_json())
+        th = thumbnails.worst_window_thumbnails(scene, score)
+        assert set(th) <= set(scene.object_names) and th
+        for t in th.values():
+            img = cv2.imdecode(np.frombuffer(base64.b64decode(t["png_b64"]), np.uint8), cv2.IMREAD_COLOR)
+            assert img.shape == (scene.camera.height, scene.camera.width, 3)
+        assert th == thumbnails.worst_window_thumbnails(scene, score)            # the same bytes again
+
+        def broken(*a, **k):
+            raise ValueError("no poses there")
+        monkeypatch.setattr(thumbnails, "window_thumbnail", broken)
+        bad = thumbnails.worst_window_thumbnails(scene, score)
+    assert set(bad) == set(th) and all(b["error"] == "ValueError: no poses there" for b in bad.values())
