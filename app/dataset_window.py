@@ -86,6 +86,24 @@ def sync_values(doc: dict) -> dict:
             "estimate_std_ms": None if std is None else std / 1000.0, "estimate_reliable": bool(doc.get("reliable"))}
 
 
+def triage_values(doc: dict) -> dict:
+    """Table values of the triage document ``doc`` (:func:`evpose.core.dataset.triage.triage`), per scene name:
+    ``rank`` and ``cause`` of the scenes it ranks (None: nothing flagged), ``reasons`` (every flag, for the
+    tooltip), ``next`` (the command to run) and ``object_scores`` (each object's median score, not averaged away;
+    ``lowest_score`` sorts them)."""
+    ranked = {e["scene"]: e for e in doc.get("scenes_ranked") or []}
+    out = {}
+    for r in doc["scenes"]:
+        e = ranked.get(r["name"])
+        medians = {n: s["quantiles"]["p50"] for n, s in (r.get("scores") or {}).items() if s.get("quantiles")}
+        looked = r.get("looked_at") or {}
+        text = " · ".join(f"{n} {m:.2f}" + (" (looked at)" if n in looked else "") for n, m in medians.items())
+        out[r["name"]] = {"rank": None if e is None else e["rank"], "cause": None if e is None else e["cause"],
+                          "reasons": [] if e is None else list(e["reasons"]), "next": None if e is None else e["next"],
+                          "object_scores": text or None, "lowest_score": min(medians.values(), default=None)}
+    return out
+
+
 def _signature(path: Path):
     """What tells a changed ``corrections.json`` (None when absent)."""
     try:
@@ -110,6 +128,7 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.jobs: list[Job] = []
         self.batch_job: Job | None = None
         self.last_batch: BatchResult | None = None
+        self.last_triage: dict | None = None     # the triage document of the last Triage all
         self._serial = 0
         self._requested: dict[str, int] = {}
         self._pending_refresh: set[str] = set()
@@ -145,6 +164,9 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.score_action.setToolTip("alignment score of every 10 ms window of every scene, on a local Dask cluster")
         self.sync_action = bar.addAction("Sync all (estimate only)", lambda: self.run_batch("sync"))
         self.sync_action.setToolTip("event-rate clock estimate of every scene (never applied), on a local Dask cluster")
+        self.triage_action = bar.addAction("Triage all", lambda: self.run_batch("triage"))
+        self.triage_action.setToolTip("the triage report's ranking of every scene: its cause, its reasons, the next "
+                                      "command and each object's median score (evpose dataset report)")
         bar.addWidget(QtWidgets.QLabel("  workers "))
         self.workers_spin = QtWidgets.QSpinBox(minimum=1, maximum=max(os.cpu_count() or 1, 1))
         self.workers_spin.setValue(min(os.cpu_count() or 1, max(len(self.dataset), 1)))
@@ -233,12 +255,13 @@ class DatasetWindow(QtWidgets.QMainWindow):
         from evpose.core.align.sync_run import SyncOptions
         from evpose.core.dataset.cluster import ClusterSpec, open_client
         from evpose.core.dataset.batch import map_scenes
-        from evpose.core.dataset.tasks import score_task, sync_task
+        from evpose.core.dataset.tasks import score_task, sync_task, triage_task
 
         if self.batch_job is not None:
             return None
         spec = ClusterSpec(workers=int(workers or self.workers_spin.value()))
-        fn, args = (score_task, (TRIAGE_WINDOW_US,)) if kind == "score" else (sync_task, (SyncOptions(apply=False),))
+        fn, args = {"score": (score_task, (TRIAGE_WINDOW_US,)), "sync": (sync_task, (SyncOptions(apply=False),)),
+                    "triage": (triage_task, (SyncOptions(apply=False),))}[kind]
         dataset = self.dataset
 
         def work(progress, cancel):
@@ -269,9 +292,18 @@ class DatasetWindow(QtWidgets.QMainWindow):
 
     def _batch_done(self, kind: str, result: BatchResult) -> None:
         self.last_batch = result
-        values = score_values if kind == "score" else sync_values
-        for name, doc in result.scenes.items():
-            self.table.set_values(name, values(doc))
+        if kind == "triage":
+            from evpose.core.dataset.triage import triage
+
+            refs = self.dataset.scenes
+            self.last_triage = triage(result.to_json(), order=[r.name for r in refs],
+                                      paths={r.name: str(r.path) for r in refs})
+            for name, v in triage_values(self.last_triage).items():
+                self.table.set_values(name, v)
+        else:
+            values = score_values if kind == "score" else sync_values
+            for name, doc in result.scenes.items():
+                self.table.set_values(name, values(doc))
         for name, error in result.failed.items():
             self.table.set_values(name, {"status": f"{kind} failed: {error}", "failed": True})
         self._set_busy(False, "")
@@ -289,7 +321,7 @@ class DatasetWindow(QtWidgets.QMainWindow):
     def _set_busy(self, busy: bool, text: str) -> None:
         if not busy:
             self.batch_job = None
-        for act in (self.score_action, self.sync_action):
+        for act in (self.score_action, self.sync_action, self.triage_action):
             act.setEnabled(not busy)
         self.workers_spin.setEnabled(not busy)
         self.cancel_button.setEnabled(busy)

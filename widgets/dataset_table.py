@@ -57,6 +57,12 @@ def _estimate_minus_clock(row: dict):
 
 COLUMNS = (
     Column("name", "scene", str, "the scene's folder name", numeric=False),
+    Column("rank", "rank", _int, "the triage's rank of the scene (Triage all: worst first; empty: nothing flagged)"),
+    Column("cause", "cause", str, "what to fix first (Triage all): failed, clock, pose, mounting, object scores, …; "
+                                  "the reasons and the next command in the tooltip", numeric=False),
+    Column("lowest_score", "object scores", lambda v, row: row.get("object_scores") or f"{v:.2f}",
+           "each object's median window score (Triage all; 0 = no better than noise), not averaged away; sorts by "
+           "the lowest", numeric=False, uses_row=True),
     Column("n_events", "events", _int, "number of events"),
     Column("duration_s", "duration (s)", _fixed(2), "first to last event, seconds"),
     Column("n_objects", "objects", _int, "labelled objects"),
@@ -76,6 +82,9 @@ COLUMNS = (
            derive=_estimate_minus_clock),
     Column("status", "status", str, "loading, ok, or why the scene failed", numeric=False),
 )
+#: Causes drawn in red (a label is wrong) and orange (look first).
+_CAUSE_RED = ("failed", "clock", "skew", "pose", "mounting")
+_CAUSE_ORANGE = ("object", "clock_uncertain", "unlabeled")
 
 
 class DatasetTableModel(QtCore.QAbstractTableModel):
@@ -149,6 +158,11 @@ def _foreground(key: str, row: dict):
         return QtGui.QBrush(QtGui.QColor(20, 130, 50))
     if key in ("estimate_ms", "estimate_delta_ms") and row.get("estimate_reliable") is False:
         return QtGui.QBrush(QtGui.QColor(150, 150, 150))
+    if key in ("cause", "rank") and row.get("cause"):
+        if row["cause"] in _CAUSE_RED:
+            return QtGui.QBrush(QtGui.QColor(190, 30, 30))
+        if row["cause"] in _CAUSE_ORANGE:
+            return QtGui.QBrush(QtGui.QColor(190, 110, 0))
     return None
 
 
@@ -159,6 +173,8 @@ def _tooltip(key: str, row: dict):
                 f"{row.get('touched_not_verified', 0)} marked otherwise; marks: {marks}")
     if key == "status":
         return row.get("status") or None
+    if key in ("cause", "rank") and row.get("reasons"):
+        return "\n".join(row["reasons"]) + (f"\nnext: {row['next']}" if row.get("next") else "")
     if key == "name":
         return row.get("path")
     return None

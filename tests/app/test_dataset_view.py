@@ -205,3 +205,33 @@ def test_evpose_gui_on_a_dataset_folder_shows_the_dataset_view(dataset_dir, tmp_
     assert f"screenshot saved to {png}" in run.stderr
     img = QtGui.QImage(str(png))
     assert not img.isNull() and img.width() <= 1366 and img.height() <= 768
+
+
+def test_triage_all_ranks_the_scenes_with_cause_reasons_and_object_scores(qtbot, dwin, dataset_dir):
+    """Issue 24.5: the dataset view shows the triage report's ranking: each scene's rank and cause (coloured),
+    the reasons and the next command in the tooltip, every object's median score (not averaged away)."""
+    from evpose.app.dataset_window import triage_values
+
+    job = dwin.run_batch("triage", workers=1)
+    assert job is not None and not dwin.triage_action.isEnabled()
+    qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=180_000)
+    doc = dwin.last_triage
+    assert doc is not None and not dwin.last_batch.failed
+    expected = triage_values(doc)
+    ranked = {e["scene"]: e for e in doc["scenes_ranked"]}
+    # the tiny scene's true clock is +20 ms and its poses are 5 mm / 3 deg off: s1 (prior right) for its objects,
+    # s2 (15 ms off) and s3 (420 ms off) for the clock, s3 first
+    assert {n: e["cause"] for n, e in ranked.items()} == {"s1": "object", "s2": "clock", "s3": "clock"}
+    assert ranked["s3"]["rank"] == 1
+    m = dwin.table.model()
+    for name in PRIORS_US:
+        v = dwin.table.values(name)
+        assert v["rank"] == expected[name]["rank"] and v["cause"] == expected[name]["cause"]
+        cause = m.index(dwin.table.row_of(name), dwin.table.column_of("cause"))
+        scores = m.index(dwin.table.row_of(name), dwin.table.column_of("lowest_score"))
+        assert scores.data().count("·") == 2 and all(o in scores.data() for o in ("box", "cylinder", "flatbox"))
+        if name in ranked:
+            assert cause.data() == ranked[name]["cause"]
+            assert cause.data(QtCore.Qt.ToolTipRole).endswith(f"next: {ranked[name]['next']}")
+            assert cause.data(QtCore.Qt.ForegroundRole) is not None
+    assert not (dataset_dir / "s1" / "corrections.json").exists()          # triage changes nothing
