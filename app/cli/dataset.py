@@ -184,6 +184,7 @@ def cmd_report(args) -> int:
     result = _map(args, ds, triage_task, SyncOptions(edges=args.edges, windows=args.windows), label="triage")
     doc = triage(result.to_json(), order=[ref.name for ref in ds.scenes],
                  paths={ref.name: str(ref.path) for ref in ds.scenes})
+    doc["options"] = {"edges": bool(args.edges), "windows": int(args.windows) if args.edges else None}
     path = write_report_files(doc, args.out, previous)
     for name, err in result.failed.items():
         print(f"evpose dataset report: {name}: failed: {err}", file=sys.stderr)
@@ -197,6 +198,9 @@ def cmd_report(args) -> int:
         s = doc["since_last"]
         text += (f"\nsince the last report: {len(s['new'])} newly flagged, {len(s['resolved'])} no longer flagged, "
                  f"{len(s['changed'])} flagged for another cause")
+        if "options_changed" in s:
+            text += (f" (the last report was made with other options: {s['options_changed']['was']}; flags differ "
+                     "for that too)")
     emit(args, data, text)
     return EXIT_PARTIAL if result.failed else 0
 

@@ -68,13 +68,17 @@ def check_report_siblings(html):
 
 def since_last(previous: dict | None, doc: dict) -> dict | None:
     """What changed against the previous report: ``new`` (scenes flagged now, not then), ``resolved`` (flagged
-    then, not now), ``changed`` (flagged for another cause: ``{scene, was, now}``), ``previous_runtime_s``."""
+    then, not now), ``changed`` (flagged for another cause: ``{scene, was, now}``) and, when the two reports were made
+    with other options (``doc["options"]``, e.g. ``--edges``), ``options_changed``: then flags differ for that too."""
     if previous is None:
         return None
     was = {e["scene"]: e["cause"] for e in previous.get("scenes_ranked") or []}
     now = {e["scene"]: e["cause"] for e in doc.get("scenes_ranked") or []}
-    return {"new": [s for s in now if s not in was], "resolved": [s for s in was if s not in now],
-            "changed": [{"scene": s, "was": was[s], "now": now[s]} for s in now if s in was and was[s] != now[s]]}
+    out = {"new": [s for s in now if s not in was], "resolved": [s for s in was if s not in now],
+           "changed": [{"scene": s, "was": was[s], "now": now[s]} for s in now if s in was and was[s] != now[s]]}
+    if previous.get("options") != doc.get("options"):     # e.g. one with --edges, one without: not like for like
+        out["options_changed"] = {"was": previous.get("options"), "now": doc.get("options")}
+    return out
 
 
 def ranking_csv(doc: dict) -> str:

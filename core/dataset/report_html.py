@@ -85,6 +85,9 @@ def _since_last(doc: dict) -> str:
         return ""
     parts = [("newly flagged", ", ".join(s["new"])), ("no longer flagged", ", ".join(s["resolved"])),
              ("flagged for another cause", ", ".join(f"{c['scene']} ({c['was']} → {c['now']})" for c in s["changed"]))]
+    if s.get("options_changed"):
+        parts.append(("made with other options than the last", f"{s['options_changed']['was']} → "
+                                                               f"{s['options_changed']['now']}"))
     items = "".join(f"<li><b>{_e(k)}</b>: {_e(v)}</li>" for k, v in parts if v)
     return f'<p class="since" id="since-last">Since the last report: {"<ul>" + items + "</ul>" if items else "nothing changed."}</p>'
 

@@ -377,6 +377,11 @@ def test_report_files_replace_only_their_own_siblings_and_record_what_changed(cl
     write_report_files(second, html, check_report_siblings(html))
     assert second["since_last"] == {"new": ["s1"], "resolved": ["s2"], "changed": []}
     assert "Since the last report" in html.read_text() and "no longer flagged" in html.read_text()
+    third = tr.triage(batch({"s1": shift_prior(clean_doc, 30_000), "s2": clean_doc}))
+    third["options"] = {"edges": True, "windows": 24}                    # not like for like: said so
+    write_report_files(third, html, check_report_siblings(html))
+    assert third["since_last"]["options_changed"] == {"was": None, "now": {"edges": True, "windows": 24}}
+    assert "made with other options than the last" in html.read_text()
     from evpose.core.dataset.report_files import flagged_scenes
 
     assert flagged_scenes(tmp_path / "r.json") == ["s1"] and flagged_scenes(tmp_path / "r.json", ("pose",)) == []
