@@ -14,6 +14,13 @@ window (with the dataset's shared defaults); File -> Back to dataset brings the 
   ``LocalCluster`` of N worker processes (:func:`~evpose.core.dataset.cluster.open_client`) in a Job, with a
   progress bar and Cancel; the results fill the mean-score and clock-estimate columns. Cancel takes effect
   when the cluster has started or the next scene completes (Dask cancels the tasks not yet done).
+* *Triage all* fills the rank, cause and per-object scores of ``evpose dataset report``. *Refine (dry run)* runs
+  the joint fit of ``evpose dataset refine`` (never applied) on the scenes the last triage flags for a cause it
+  fixes (every scene before a triage); each row shows its proposed change with its sigma. The detail pane below the
+  table shows the selected scene in full (a failure's whole message, the reasons, the next command, the proposal
+  and what it keeps) with *Apply proposal* (:func:`~evpose.core.align.refine_run.apply_proposal`: one undo step,
+  refused when the corrections changed since the proposal) and *Reject proposal* (nothing written).
+* *Export…* runs ``evpose dataset export`` on the cluster, with the same progress bar and Cancel.
 """
 from __future__ import annotations
 
@@ -29,9 +36,10 @@ from evpose.core.dataset.dataset import Dataset
 from evpose.core.dataset.tasks import TRIAGE_WINDOW_US
 from evpose.core.errors import InputError
 from evpose.widgets.dataset_table import DatasetTable
+from evpose.widgets.scene_detail import SceneDetail
 
-__all__ = ["DatasetWindow", "open_dataset", "open_dataset_dialog", "scene_row", "score_values", "show_dataset",
-           "sync_values"]
+__all__ = ["DatasetWindow", "detail_text", "open_dataset", "open_dataset_dialog", "refine_values", "scene_row",
+           "score_values", "show_dataset", "sync_values"]
 
 #: A burst of directory events (an atomic save is a temp file and a rename) is read once, after this pause.
 REFRESH_DEBOUNCE_MS = 200
@@ -104,6 +112,44 @@ def triage_values(doc: dict) -> dict:
     return out
 
 
+def refine_values(doc: dict) -> dict:
+    """Table values of one dry-run ``evpose refine --joint --json`` document: ``proposal`` (the changes with their
+    sigma, or why nothing would change), ``proposal_state`` ("proposed" or "none") and the document itself
+    (``proposal_doc``, what Apply stores)."""
+    changes = doc.get("changes") or []
+    if changes:
+        return {"proposal": "; ".join(c["text"] for c in changes), "proposal_state": "proposed", "proposal_doc": doc}
+    text = "no change (within sigma)" if doc.get("accepted") else f"start kept: {doc.get('reason') or 'not accepted'}"
+    return {"proposal": text, "proposal_state": "none", "proposal_doc": doc}
+
+
+def detail_text(name: str, row: dict) -> str:
+    """Everything the dataset view knows about scene ``name`` (its table values ``row``) as plain text, in full."""
+    lines = [f"{name}    {row.get('path') or ''}".rstrip()]
+    status = row.get("status")
+    if status:
+        lines.append(("FAILED: " if row.get("failed") else "status: ") + str(status))
+    if row.get("cause"):
+        lines.append(f"triage: rank {row.get('rank')}, cause {row['cause']}")
+        lines += [f"  - {r}" for r in row.get("reasons") or []]
+        if row.get("next"):
+            lines.append(f"  next: {row['next']}")
+    elif row.get("rank") is None and "cause" in row:
+        lines.append("triage: nothing flagged")
+    if row.get("object_scores"):
+        lines.append(f"object scores (median): {row['object_scores']}")
+    doc = row.get("proposal_doc")
+    if row.get("proposal"):
+        lines.append(f"proposal: {row['proposal']}")
+    if doc is not None:
+        lines += [f"  kept: {k}" for k in doc.get("kept") or []]
+        lines += [f"  held: {n}: {why}" for n, why in (doc.get("held") or {}).items()]
+        lines += [f"  note: {n}" for n in doc.get("notes") or []]
+    if row.get("exported"):
+        lines.append(f"export: {row['exported']}")
+    return "\n".join(lines)
+
+
 def _signature(path: Path):
     """What tells a changed ``corrections.json`` (None when absent)."""
     try:
@@ -141,7 +187,18 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.table = DatasetTable()
         self.table.set_scenes([ref.name for ref in dataset.scenes])
         self.table.sceneActivated.connect(self.open_row)
+        self.table.sceneSelected.connect(self._show_detail)
         self.setCentralWidget(self.table)
+        self.detail = SceneDetail()
+        self.detail.applyRequested.connect(self.apply_proposal)
+        self.detail.rejectRequested.connect(self.reject_proposal)
+        dock = QtWidgets.QDockWidget("Details", self)
+        dock.setObjectName("detail_dock")
+        dock.setFeatures(QtWidgets.QDockWidget.NoDockWidgetFeatures)
+        dock.setWidget(self.detail)
+        self.detail.setMinimumHeight(6 * self.fontMetrics().height())
+        self.addDockWidget(QtCore.Qt.BottomDockWidgetArea, dock)
+        self.detail_dock = dock
         self._build_toolbar()
         self.statusBar().showMessage(f"{dataset.root} — double-click a scene to open it")
 
@@ -150,7 +207,9 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self._refresh_timer = QtCore.QTimer(self, singleShot=True, interval=REFRESH_DEBOUNCE_MS)
         self._refresh_timer.timeout.connect(self._refresh_changed)
         row_px = self.table.verticalHeader().defaultSectionSize()
-        self.resize(1300, min(150 + row_px * max(len(dataset), 4), 700))      # fits a 1366x768 screen
+        detail_px = 10 * self.fontMetrics().height()
+        self.resize(1300, min(190 + row_px * max(len(dataset), 4) + detail_px, 700))      # fits a 1366x768 screen
+        self.resizeDocks([dock], [detail_px], QtCore.Qt.Vertical)
 
     # ------------------------------------------------------------------ layout
     def _build_toolbar(self) -> None:
@@ -167,6 +226,16 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.triage_action = bar.addAction("Triage all", lambda: self.run_batch("triage"))
         self.triage_action.setToolTip("the triage report's ranking of every scene: its cause, its reasons, the next "
                                       "command and each object's median score (evpose dataset report)")
+        self.edges_check = QtWidgets.QCheckBox("with edges")
+        self.edges_check.setToolTip("Triage all also fits clock and poses from the event edges (evpose dataset report "
+                                    "--edges): verdicts on each object's pose and the camera mounting; slower")
+        bar.addWidget(self.edges_check)
+        self.refine_action = bar.addAction("Refine (dry run)", lambda: self.run_batch("refine"))
+        self.refine_action.setToolTip("joint fit of clock and poses (evpose dataset refine, never applied) on the "
+                                      "scenes the last Triage all flags for clock, pose or mounting (every scene "
+                                      "before a triage); Apply or Reject each proposal in the detail pane")
+        self.export_action = bar.addAction("Export…", self.export_dialog)
+        self.export_action.setToolTip("evpose dataset export of every scene (BOP, E-POSE or HDF5) on the cluster")
         bar.addWidget(QtWidgets.QLabel("  workers "))
         self.workers_spin = QtWidgets.QSpinBox(minimum=1, maximum=max(os.cpu_count() or 1, 1))
         self.workers_spin.setValue(min(os.cpu_count() or 1, max(len(self.dataset), 1)))
@@ -213,7 +282,17 @@ class DatasetWindow(QtWidgets.QMainWindow):
     def _row_ready(self, name: str, values: dict, serial: int) -> None:
         if serial < self._requested.get(name, 0):
             return                          # an older read finished after a newer one was asked for
+        self._set(name, values)
+
+    def _set(self, name: str, values: dict) -> None:
+        """Update scene ``name``'s row (and the detail pane when it shows that scene)."""
         self.table.set_values(name, values)
+        if self.detail.name == name:
+            self._show_detail(name)
+
+    def _show_detail(self, name: str) -> None:
+        row = self.table.values(name)
+        self.detail.show_scene(name, detail_text(name, row), row.get("proposal_state") == "proposed")
 
     def rows_loaded(self) -> bool:
         """True when no row is still being read."""
@@ -249,35 +328,119 @@ class DatasetWindow(QtWidgets.QMainWindow):
         return session
 
     # ------------------------------------------------------------------ dataset jobs
-    def run_batch(self, kind: str, workers: int | None = None) -> Job | None:
-        """Run ``score`` or ``sync`` (the rate estimate, never applied) over every scene on a local Dask cluster
-        of ``workers`` processes (default: the spin box) in a background Job; None when one already runs."""
+    def run_batch(self, kind: str, workers: int | None = None, **export) -> Job | None:
+        """Run ``score``, ``sync`` (the rate estimate, never applied), ``triage``, ``refine`` (dry run) or ``export``
+        (keywords ``fmt`` and ``out``) over the dataset's scenes on a local Dask cluster of ``workers`` processes
+        (default: the spin box) in a background Job; None when one already runs or nothing is to do."""
+        from evpose.core.align.refine_run import JointRunOptions
         from evpose.core.align.sync_run import SyncOptions
-        from evpose.core.dataset.cluster import ClusterSpec, open_client
         from evpose.core.dataset.batch import map_scenes
-        from evpose.core.dataset.tasks import score_task, sync_task, triage_task
+        from evpose.core.dataset.cluster import ClusterSpec, open_client
+        from evpose.core.dataset.tasks import refine_task, score_task, sync_task, triage_task
 
         if self.batch_job is not None:
             return None
+        dataset = self._batch_scope(kind)
+        if dataset is None:
+            return None
         spec = ClusterSpec(workers=int(workers or self.workers_spin.value()))
-        fn, args = {"score": (score_task, (TRIAGE_WINDOW_US,)), "sync": (sync_task, (SyncOptions(apply=False),)),
-                    "triage": (triage_task, (SyncOptions(apply=False),))}[kind]
-        dataset = self.dataset
+        if kind == "export":
+            from evpose.core.dataset.export import export_dataset
+
+            def run(client, progress, cancel):
+                return export_dataset(client, dataset, export["fmt"], export["out"], progress=progress, cancel=cancel)
+        else:
+            fn, args = {"score": (score_task, (TRIAGE_WINDOW_US,)), "sync": (sync_task, (SyncOptions(apply=False),)),
+                        "triage": (triage_task, (SyncOptions(apply=False, edges=self.edges_check.isChecked()),)),
+                        "refine": (refine_task, (JointRunOptions(apply=False),))}[kind]
+
+            def run(client, progress, cancel):
+                return map_scenes(client, dataset, fn, *args, label=kind, progress=progress, cancel=cancel)
 
         def work(progress, cancel):
             progress(0.0, f"starting a {spec.describe()}…")
             with open_client(spec) as client:
                 if cancel():
                     raise Cancelled(f"{dataset.root}: {kind} cancelled")
-                return map_scenes(client, dataset, fn, *args, label=kind, progress=progress, cancel=cancel)
+                return run(client, progress, cancel)
 
         job = Job(work)
         job.signals.progress.connect(self._batch_progress)
-        job.signals.finished.connect(lambda result: self._batch_done(kind, result))
+        job.signals.finished.connect(lambda result: self._batch_done(kind, result, export))
         job.signals.failed.connect(lambda message, details: self._batch_failed(kind, message, details))
         self.batch_job = job
         self._set_busy(True, f"{kind}: starting…")
         return self._start(job)
+
+    def _batch_scope(self, kind: str) -> Dataset | None:
+        """The scenes a batch runs on: Refine takes those the last triage flags for a cause it fixes (all before a
+        triage; None and a status line when it flags none)."""
+        if kind != "refine" or self.last_triage is None:
+            return self.dataset
+        from evpose.core.dataset.report_files import FIXABLE, ranked_for
+
+        names = ranked_for(self.last_triage, FIXABLE["refine"])
+        if not names:
+            self.statusBar().showMessage("refine: the last triage flags no scene for clock, pose or mounting", 20_000)
+            return None
+        return self.dataset.only(names)
+
+    def export_dialog(self) -> Job | None:
+        """Ask for the format and the output folder, then :meth:`run_batch` ``export``."""
+        fmt, ok = QtWidgets.QInputDialog.getItem(self, "Export the dataset", "format", ["epose", "bop", "h5"], 0, False)
+        if not ok:
+            return None
+        out = QtWidgets.QFileDialog.getExistingDirectory(self, "Export into folder")
+        if not out:
+            return None
+        try:
+            from evpose.core.dataset.export import check_dataset_export
+
+            check_dataset_export(self.dataset, out, fmt)          # refused before a cluster starts
+        except InputError as exc:
+            self.main.controller.error("Cannot export the dataset", str(exc))
+            return None
+        return self.run_batch("export", fmt=fmt, out=out)
+
+    # ------------------------------------------------------------------ proposals
+    def apply_proposal(self, name: str) -> Job | None:
+        """Store scene ``name``'s proposal (:func:`~evpose.core.align.refine_run.apply_proposal`) in a Job: one undo
+        step in its ``corrections.json``; refused in one line when the corrections changed since the proposal."""
+        from evpose.core.align.refine_run import apply_proposal
+
+        doc = self.table.values(name).get("proposal_doc")
+        if not doc or not doc.get("changes"):
+            return None
+        ref = self.dataset.scene(name)
+        dataset = self.dataset
+
+        def work(progress, cancel):
+            scene = dataset.open_scene(ref)
+            try:
+                return apply_proposal(scene, dict(doc))
+            finally:
+                scene.close()
+
+        text = self.table.values(name).get("proposal")
+        job = Job(work)
+        job.signals.finished.connect(lambda line: self._proposal_applied(name, text, line))
+        job.signals.failed.connect(lambda message, _details: self._proposal_failed(name, message))
+        self._set(name, {"proposal": f"applying: {text}", "proposal_state": "applying"})
+        return self._start(job)
+
+    def _proposal_applied(self, name: str, text: str, line: str) -> None:
+        self._set(name, {"proposal": f"applied: {text}", "proposal_state": "applied", "proposal_doc": None})
+        self.statusBar().showMessage(f"{name}: {line}", 20_000)
+
+    def _proposal_failed(self, name: str, message: str) -> None:
+        doc = self.table.values(name).get("proposal_doc") or {}
+        self._set(name, {**refine_values(doc), "proposal": f"not applied: {message}", "proposal_state": "stale"})
+        self.statusBar().showMessage(f"{name}: not applied: {message}", 20_000)
+
+    def reject_proposal(self, name: str) -> None:
+        """Drop scene ``name``'s proposal; nothing is written."""
+        self._set(name, {"proposal": "rejected (nothing written)", "proposal_state": "rejected", "proposal_doc": None})
+        self.statusBar().showMessage(f"{name}: proposal rejected; nothing written", 10_000)
 
     def cancel_batch(self) -> None:
         if self.batch_job is not None:
@@ -290,22 +453,26 @@ class DatasetWindow(QtWidgets.QMainWindow):
         if not self.batch_job.cancelled:
             self.progress.setFormat(message)
 
-    def _batch_done(self, kind: str, result: BatchResult) -> None:
+    def _batch_done(self, kind: str, result: BatchResult, export: dict | None = None) -> None:
         self.last_batch = result
-        if kind == "triage":
+        if kind == "export":
+            for name, doc in result.scenes.items():
+                self._set(name, {"exported": f"{doc.get('written', 0)} windows written, {doc.get('skipped_complete', 0)} "
+                                             f"already complete, to {Path(export['out']) / name} ({export['fmt']})"})
+        elif kind == "triage":
             from evpose.core.dataset.triage import triage
 
             refs = self.dataset.scenes
             self.last_triage = triage(result.to_json(), order=[r.name for r in refs],
                                       paths={r.name: str(r.path) for r in refs})
             for name, v in triage_values(self.last_triage).items():
-                self.table.set_values(name, v)
+                self._set(name, v)
         else:
-            values = score_values if kind == "score" else sync_values
+            values = {"score": score_values, "sync": sync_values, "refine": refine_values}[kind]
             for name, doc in result.scenes.items():
-                self.table.set_values(name, values(doc))
+                self._set(name, values(doc))
         for name, error in result.failed.items():
-            self.table.set_values(name, {"status": f"{kind} failed: {error}", "failed": True})
+            self._set(name, {"status": f"{kind} failed: {error}", "failed": True})
         self._set_busy(False, "")
         self.statusBar().showMessage(f"{kind}: {len(result.scenes)} scenes done, {len(result.failed)} failed "
                                      f"in {result.runtime_s:.1f} s", 20_000)
@@ -321,9 +488,10 @@ class DatasetWindow(QtWidgets.QMainWindow):
     def _set_busy(self, busy: bool, text: str) -> None:
         if not busy:
             self.batch_job = None
-        for act in (self.score_action, self.sync_action, self.triage_action):
+        for act in (self.score_action, self.sync_action, self.triage_action, self.refine_action, self.export_action):
             act.setEnabled(not busy)
         self.workers_spin.setEnabled(not busy)
+        self.edges_check.setEnabled(not busy)
         self.cancel_button.setEnabled(busy)
         self.progress.setValue(0)
         self.progress.setFormat(text)

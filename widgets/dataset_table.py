@@ -63,6 +63,9 @@ COLUMNS = (
     Column("lowest_score", "object scores", lambda v, row: row.get("object_scores") or f"{v:.2f}",
            "each object's median window score (Triage all; 0 = no better than noise), not averaged away; sorts by "
            "the lowest", numeric=False, uses_row=True),
+    Column("proposal", "proposed change", str, "what Refine (dry run) would store, each change with its sigma "
+                                               "(Apply / Reject below); 'no change' when everything is within sigma",
+           numeric=False),
     Column("n_events", "events", _int, "number of events"),
     Column("duration_s", "duration (s)", _fixed(2), "first to last event, seconds"),
     Column("n_objects", "objects", _int, "labelled objects"),
@@ -80,7 +83,8 @@ COLUMNS = (
     Column("estimate_delta_ms", "estimate − clock (ms)", _fixed(1, sign=True),
            "clock estimate minus the clock in effect: how far the labels' clock is off, by the event rate",
            derive=_estimate_minus_clock),
-    Column("status", "status", str, "loading, ok, or why the scene failed", numeric=False),
+    Column("status", "status", str, "loading, ok, or why the scene failed (in full in the detail pane)",
+           numeric=False),
 )
 #: Causes drawn in red (a label is wrong) and orange (look first).
 _CAUSE_RED = ("failed", "clock", "skew", "pose", "mounting")
@@ -158,6 +162,8 @@ def _foreground(key: str, row: dict):
         return QtGui.QBrush(QtGui.QColor(20, 130, 50))
     if key in ("estimate_ms", "estimate_delta_ms") and row.get("estimate_reliable") is False:
         return QtGui.QBrush(QtGui.QColor(150, 150, 150))
+    if key == "proposal" and row.get("proposal_state") == "proposed":
+        return QtGui.QBrush(QtGui.QColor(20, 80, 190))
     if key in ("cause", "rank") and row.get("cause"):
         if row["cause"] in _CAUSE_RED:
             return QtGui.QBrush(QtGui.QColor(190, 30, 30))
@@ -196,9 +202,10 @@ class _SortProxy(QtCore.QSortFilterProxyModel):
 
 class DatasetTable(QtWidgets.QTableView):
     """The dataset's scenes, sortable by any column. Double-clicking (or Enter on) a row emits
-    ``sceneActivated(name)``."""
+    ``sceneActivated(name)``; selecting one ``sceneSelected(name)``."""
 
     sceneActivated = QtCore.Signal(str)
+    sceneSelected = QtCore.Signal(str)
 
     def __init__(self, parent=None):
         super().__init__(parent)
@@ -221,6 +228,17 @@ class DatasetTable(QtWidgets.QTableView):
         header.setStretchLastSection(True)
         header.setDefaultAlignment(QtCore.Qt.AlignCenter)
         self.doubleClicked.connect(self._activated)
+        self.selectionModel().currentRowChanged.connect(
+            lambda cur, _prev: cur.isValid() and self.sceneSelected.emit(self.proxy.index(cur.row(), 0).data(SORT_ROLE)))
+
+    def current_name(self) -> str | None:
+        """The selected scene's name (None when no row is current)."""
+        cur = self.currentIndex()
+        return self.proxy.index(cur.row(), 0).data(SORT_ROLE) if cur.isValid() else None
+
+    def select(self, name: str) -> None:
+        """Make scene ``name``'s row the current one."""
+        self.setCurrentIndex(self.proxy.index(self.row_of(name), 0))
 
     def set_scenes(self, names: list[str]) -> None:
         self.table_model.set_scenes(names)

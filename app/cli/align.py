@@ -83,7 +83,9 @@ def add_align_parsers(subparsers) -> None:
     s.add_argument("--offset", action="store_true", help="also refine the clock offset (before the poses)")
     s.add_argument("--joint", action="store_true",
                    help="fit the clock (offset, and skew when the windows pin it) and the object poses together "
-                        "(one document: 'clock', 'objects', 'hand_eye'; --apply stores all of it as one undo step)")
+                        "(one document: 'clock', 'objects', 'hand_eye'; --apply stores all of it as one undo step); "
+                        "when the fit shows a camera-mounting error, the hand-eye is fitted and proposed too, instead "
+                        "of a clock and poses bent to absorb it")
     s.add_argument("--hand-eye", action="store_true",
                    help="with --joint: also fit a hand-eye correction (camera frame) shared by all objects")
     s.add_argument("--no-clock", action="store_true", help="with --joint: keep the clock in effect")

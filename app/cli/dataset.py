@@ -65,16 +65,11 @@ def _open_dataset(args):
     return Dataset.open(args.dataset)
 
 
-#: The worst causes of a report's scenes that each command can deal with (``--only-flagged``).
-FIXABLE = {"sync": ("clock", "skew", "clock_uncertain", "object"),
-           "refine": ("clock", "skew", "clock_uncertain", "object", "pose", "mounting")}
-
-
 def _flagged(args, ds):
     """``ds``, or with ``--only-flagged REPORT.json`` the scenes that report ranks for a cause this command fixes."""
     if not getattr(args, "only_flagged", None):
         return ds
-    from evpose.core.dataset.report_files import flagged_scenes
+    from evpose.core.dataset.report_files import FIXABLE, flagged_scenes
 
     names = [n for n in flagged_scenes(args.only_flagged, FIXABLE[args.action]) if n in {r.name for r in ds.scenes}]
     if not names and not args.quiet:
@@ -299,7 +294,9 @@ def add_dataset_parser(subparsers) -> None:
     p.add_argument("dataset", metavar="DATASET")
     p.add_argument("--joint", action="store_true", help="the joint fit of clock and poses (the only mode; accepted "
                                                        "for symmetry with evpose refine)")
-    p.add_argument("--hand-eye", action="store_true", help="fit a hand-eye correction too")
+    p.add_argument("--hand-eye", action="store_true", help="fit a hand-eye correction too (without it, a scene whose "
+                                                           "fit shows a camera-mounting error gets the hand-eye fitted "
+                                                           "and proposed anyway)")
     p.add_argument("--no-clock", action="store_true", help="keep each scene's clock")
     p.add_argument("--windows", type=int, default=24, help="event windows of each fit")
     p.add_argument("--only-flagged", metavar="REPORT.json", help="only the scenes that report (dataset report's JSON) "

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from evpose.core.align import edge_samples_kernel as _kernel
 from evpose.core.align.event_windows import EventWindow
 from evpose.core.align.mesh_edges import MeshEdges
 from evpose.core.align.nearest import nearest_within
@@ -39,11 +40,14 @@ def _render(raster: Rasterizer, models, T_co: list) -> tuple:
     return res, dmax
 
 
-def _edge_samples(cam, me: MeshEdges, T: np.ndarray, spacing_px: float):
+def _edge_samples(cam, me: MeshEdges, T: np.ndarray, spacing_px: float, compiled: bool = _kernel.HAVE_NUMBA):
     """Samples every ``spacing_px`` along the contour generators of one object in front of the
-    camera (``T``: camera <- object): ``(P object frame, P camera frame, unit 2D normal)`` or None."""
+    camera (``T``: camera <- object): ``(P object frame, P camera frame, unit 2D normal)`` or None.
+    ``compiled``: :func:`evpose.core.align.edge_samples_kernel.edge_samples` (same arrays, ~10x faster)."""
     K = cam.K
     cam_obj = inv_T(T)[:3, 3]
+    if compiled:
+        return _kernel.edge_samples(me, T, cam_obj, K, cam.near_m, spacing_px)
     idx = me.contour_edges(cam_obj)
     if len(idx) == 0:
         return None

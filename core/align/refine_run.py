@@ -9,7 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["JointRunOptions", "JointRun", "run_refine_joint", "APPLY_TEXT"]
+import numpy as np
+
+from evpose.core.errors import InputError
+
+__all__ = ["JointRunOptions", "JointRun", "ProposalError", "run_refine_joint", "apply_proposal", "APPLY_TEXT"]
 
 #: The undo step's text of an applied joint refinement (the app's Undo names it).
 APPLY_TEXT = "refine clock and poses from edges"
@@ -39,19 +43,76 @@ class JointRun:
 
 
 def run_refine_joint(scene, opts: JointRunOptions, *, progress=None, cancel=None) -> JointRun:
+    """Fit (:func:`~evpose.core.align.joint_fit.refine_joint`), plan and, with ``opts.apply``, store and save.
+
+    A clock-and-poses fit of every object (no hand-eye) gets the camera-mounting check of ``evpose sync --edges``
+    (:func:`~evpose.core.align.sync_run.mounting_check`): when it shows what a mounting error does, the fit runs again
+    with the hand-eye free, and when the mounting is off beyond its sigma that fit is the answer -- the hand-eye is
+    proposed (and stored with ``apply``) instead of a clock and object poses bent to absorb it."""
     from evpose.core.align.apply import plan_joint_result, save_applied, store_changes
     from evpose.core.align.joint_fit import refine_joint
     from evpose.core.align.joint_result import JointParams
+    from evpose.core.align.sync_run import (MOUNTING_MIN_TURN_DEG, _halves, camera_turn_deg, mounting_check,
+                                            mounting_suspected)
     from evpose.core.document.history import History
 
     params = JointParams(clock=opts.clock, objects=opts.objects, hand_eye=opts.hand_eye, n_windows=opts.windows)
     run = JointRun()
-    r = run.result = refine_joint(scene, params=params, progress=progress, cancel=cancel)
+    check = opts.clock and not opts.hand_eye and opts.objects is None
+    first, second = _halves(progress) if check else (progress, None)
+    r = refine_joint(scene, params=params, progress=first, cancel=cancel)
+    if check and mounting_suspected(r):
+        alt = refine_joint(scene, params=JointParams(clock=True, hand_eye=True, n_windows=opts.windows),
+                           progress=second, cancel=cancel)
+        r = mounting_check(r, alt, turns=camera_turn_deg(scene) >= MOUNTING_MIN_TURN_DEG)
+    elif check and progress is not None:
+        progress(1.0, "done (no sign of a camera-mounting error)")
+    run.result = r
     data = run.data = r.to_json()
     changes, kept = plan_joint_result(scene, r)
+    data["planned_on"] = scene.corrections.digest()
     data["changes"] = [c.to_json() for c in changes]
     data["kept"] = kept
     data["applied"] = bool(opts.apply) and store_changes(History(scene.corrections), changes, APPLY_TEXT)
     if data["applied"]:
         run.saved_line = save_applied(scene, data)
     return run
+
+
+class ProposalError(InputError):
+    """A dry run's proposal that cannot be applied (nothing to apply, or the corrections changed since)."""
+
+
+def apply_proposal(scene, doc: dict) -> str:
+    """Store the ``changes`` of a dry run's document ``doc`` (:func:`run_refine_joint` without ``apply``) into
+    ``scene``'s corrections as one undo step and save them; the same corrections ``--apply`` would have stored.
+
+    Refused (:class:`ProposalError`) when the corrections in effect are not the ones the proposal was planned on
+    (``doc["planned_on"]``): a change judged against other corrections (another save meanwhile, an earlier apply)
+    is never stored. Returns the "applied and saved to ..." line."""
+    from evpose.core.align.apply import save_applied
+    from evpose.core.document.estimates import apply_clock_estimate, apply_pose_estimate
+    from evpose.core.document.history import History
+
+    where = scene.corrections_path
+    changes = doc.get("changes") or []
+    if not changes:
+        raise ProposalError(f"{where}: changes: the proposal has nothing to apply")
+    if doc.get("planned_on") != scene.corrections.digest():
+        raise ProposalError(f"{where}: planned_on: the corrections changed since the proposal was made; "
+                            "run the refinement again")
+    history = History(scene.corrections)
+    with history.group(APPLY_TEXT):
+        for c in changes:
+            if c["part"] == "clock":
+                apply_clock_estimate(history, scene, doc["offset_us"], doc["skew_ppm"], APPLY_TEXT)
+            elif c["part"] == "object":
+                apply_pose_estimate(history, c["name"], np.asarray(doc["objects"][c["name"]]["dT_base"]), APPLY_TEXT)
+            elif c["part"] == "hand-eye":
+                history.set(("hand_eye",), np.asarray(doc["hand_eye"]["dT_cam"], np.float64), text=APPLY_TEXT)
+            else:
+                raise ProposalError(f"{where}: changes: unknown part {c['part']!r}")
+    out = dict(doc, applied=True)
+    line = save_applied(scene, out)
+    doc.update(applied=True, saved=out["saved"], revision=out["revision"])
+    return line

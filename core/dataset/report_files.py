@@ -18,10 +18,14 @@ from evpose.core.data.atomic import AtomicBatch
 from evpose.core.data.json_values import to_jsonable
 from evpose.core.errors import NotOursError
 
-__all__ = ["CSV_HEADER", "check_report_siblings", "flagged_scenes", "ranking_csv", "since_last", "sibling_paths",
+__all__ = ["CSV_HEADER", "FIXABLE", "check_report_siblings", "flagged_scenes", "ranked_for", "ranking_csv", "since_last", "sibling_paths",
            "write_report_files"]
 
 CSV_HEADER = ["rank", "scene", "severity", "cause", "reasons", "next"]
+#: The worst causes of a report's scenes that each dataset command can deal with (``--only-flagged``, the dataset
+#: view's Refine).
+FIXABLE = {"sync": ("clock", "skew", "clock_uncertain", "object"),
+           "refine": ("clock", "skew", "clock_uncertain", "object", "pose", "mounting")}
 
 
 def sibling_paths(html) -> tuple[Path, Path]:
@@ -113,6 +117,11 @@ def flagged_scenes(report_json, causes=None) -> list[str]:
     if not path.is_file():
         raise NotOursError(f"{path}: --only-flagged: no such report (the REPORT.json that evpose dataset report wrote "
                            "beside its HTML)")
-    doc = _ours_json(path)
+    return ranked_for(_ours_json(path), causes)
+
+
+def ranked_for(doc: dict, causes=None) -> list[str]:
+    """The scenes triage document ``doc`` ranks, worst first; with ``causes`` only those whose worst cause is one of
+    them."""
     return [e["scene"] for e in doc.get("scenes_ranked") or [] if causes is None or e["cause"] in causes]
 

@@ -125,9 +125,8 @@ def triage_task(path: str, defaults, sync_opts, window_us: int = TRIAGE_WINDOW_U
     from evpose.core.dataset.thumbnails import worst_window_thumbnails
 
     with _scene(path, defaults) as scene:
-        score = score_windows(scene, window_us=window_us).to_json()
+        score = plain(score_windows(scene, window_us=window_us).to_json())
         doc = {"info": scene_info(scene), "sync": run_sync(scene, replace(sync_opts, apply=False)).data,
                "score": score, "review": review_progress(scene, window_us),
-               "thumbnails": worst_window_thumbnails(scene, plain(score)),
-               "looked_at": looked_at(scene, plain(score), window_us)}
+               "thumbnails": worst_window_thumbnails(scene, score), "looked_at": looked_at(scene, score, window_us)}
     return plain(doc)

@@ -186,6 +186,14 @@ class Corrections:
         d = self.to_json()
         return {k: d[k] for k in DOCUMENT_KEYS}
 
+    def digest(self) -> str:
+        """SHA-256 (hex) of :meth:`canonical`: names the corrections an estimate was planned against, so a proposal
+        is applied only to the document it was made for."""
+        import hashlib
+        import json
+
+        return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()
+
     @classmethod
     def from_json(cls, data: dict, source: str = "corrections.json") -> "Corrections":
         if not isinstance(data, dict):

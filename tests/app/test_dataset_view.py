@@ -235,3 +235,62 @@ def test_triage_all_ranks_the_scenes_with_cause_reasons_and_object_scores(qtbot,
             assert cause.data(QtCore.Qt.ToolTipRole).endswith(f"next: {ranked[name]['next']}")
             assert cause.data(QtCore.Qt.ForegroundRole) is not None
     assert not (dataset_dir / "s1" / "corrections.json").exists()          # triage changes nothing
+
+
+def test_refine_dry_run_then_apply_and_reject_in_the_detail_pane(qtbot, dwin, dataset_dir):
+    """Issue 24.5: Refine (dry run) proposes each scene's changes with their sigma and writes nothing; the detail
+    pane shows the selected scene in full; Apply stores the proposal as the dry run's document says (one undo step,
+    the same corrections ``refine --joint --apply`` stores), a second Apply of a stale proposal is refused in one
+    line, and Reject writes nothing."""
+    from evpose.app.dataset_window import detail_text
+    from evpose.core.document.corrections import Corrections
+
+    dwin.last_triage = {"scenes_ranked": [{"scene": "s2", "cause": "clock", "rank": 1, "reasons": [], "next": ""},
+                                          {"scene": "s1", "cause": "object", "rank": 2, "reasons": [], "next": ""}]}
+    job = dwin.run_batch("refine", workers=1)
+    assert job is not None and not dwin.refine_action.isEnabled()
+    qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=300_000)
+    assert set(dwin.last_batch.scenes) == {"s1", "s2"}                  # only the flagged scenes
+    assert not any((dataset_dir / n / "corrections.json").exists() for n in PRIORS_US)
+    s2 = dwin.table.values("s2")
+    doc = s2["proposal_doc"]
+    assert s2["proposal_state"] == "proposed" and any(c["part"] == "clock" for c in doc["changes"])
+    assert "+-" in s2["proposal"] and dwin.table.values("s3").get("proposal") is None
+    cell = dwin.table.model().index(dwin.table.row_of("s2"), dwin.table.column_of("proposal"))
+    assert cell.data(QtCore.Qt.ForegroundRole) is not None
+
+    dwin.table.select("s2")
+    assert dwin.detail.name == "s2" and dwin.detail.apply_button.isEnabled()
+    assert dwin.detail.text.toPlainText() == detail_text("s2", dwin.table.values("s2"))
+    assert f"proposal: {s2['proposal']}" in dwin.detail.text.toPlainText()
+    dwin.detail.apply_button.click()
+    qtbot.waitUntil(lambda: dwin.table.values("s2")["proposal_state"] == "applied", timeout=60_000)
+    saved = Corrections.load(dataset_dir / "s2" / "corrections.json")
+    assert saved.revision == 1
+    assert saved.offset_us + PRIORS_US["s2"] == doc["offset_us"]        # the clock the dry run proposed
+    assert not dwin.detail.apply_button.isEnabled()
+
+    # the same proposal again: the corrections changed since it was made
+    dwin._set("s2", {"proposal_doc": doc, "proposal_state": "proposed"})
+    dwin.apply_proposal("s2")
+    qtbot.waitUntil(lambda: dwin.table.values("s2")["proposal_state"] == "stale", timeout=60_000)
+    assert "corrections changed since the proposal" in dwin.table.values("s2")["proposal"]
+    assert Corrections.load(dataset_dir / "s2" / "corrections.json").revision == 1
+
+    s1 = dwin.table.values("s1")
+    dwin.table.select("s1")
+    if s1["proposal_state"] == "proposed":
+        dwin.detail.reject_button.click()
+        assert dwin.table.values("s1")["proposal_state"] == "rejected"
+    assert not (dataset_dir / "s1" / "corrections.json").exists()
+    qtbot.waitUntil(lambda: not dwin.jobs, timeout=60_000)
+
+
+def test_detail_pane_shows_a_failure_in_full(dwin):
+    long = "events.h5: t: " + "timestamps go back " * 20 + "(the end)"
+    dwin._set("s3", {"status": long, "failed": True, "cause": "failed", "rank": 1, "reasons": ["unreadable"],
+                     "next": "evpose info s3"})
+    dwin.table.select("s3")
+    text = dwin.detail.text.toPlainText()
+    assert f"FAILED: {long}" in text and "next: evpose info s3" in text and "  - unreadable" in text
+    assert not dwin.detail.apply_button.isEnabled()

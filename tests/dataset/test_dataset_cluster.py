@@ -317,14 +317,35 @@ def _snapshot(root: Path) -> dict:
             for p in sorted(root.rglob("*"))}
 
 
+def _apply_proposals(root: Path, docs: dict) -> None:
+    """Apply each dry-run document with :func:`apply_proposal` (the dataset view's Apply); a second apply of the same
+    proposal is refused (the corrections changed since it was made), and so is an empty one."""
+    from evpose.core.align.refine_run import ProposalError, apply_proposal
+    from evpose.core.data.scene import Scene
+
+    for name, doc in docs.items():
+        scene = Scene.open(root / name)
+        try:
+            if not doc["changes"]:
+                with pytest.raises(ProposalError, match="nothing to apply"):
+                    apply_proposal(scene, doc)
+                continue
+            assert "applied and saved" in apply_proposal(scene, dict(doc))
+            with pytest.raises(ProposalError, match="planned_on: the corrections changed"):
+                apply_proposal(scene, doc)
+        finally:
+            scene.close()
+
+
 def test_dataset_refine_dry_run_touches_nothing_and_apply_equals_the_single_scene_command(dataset_copy, tmp_path):
     """Issue 24.2: ``dataset refine`` is a dry run by default (no file written, not even a lock or a journal; each
     scene's diff printed with its sigma), and ``--apply`` stores, scene by scene, what ``evpose refine --joint
     --apply`` stores: the same changes, the same corrections; a rerun then finds nothing beyond its sigma."""
     import shutil
 
-    single = tmp_path / "single"
+    single, proposed = tmp_path / "single", tmp_path / "proposed"
     shutil.copytree(dataset_copy, single)
+    shutil.copytree(dataset_copy, proposed)
     before = _snapshot(dataset_copy)
     r = _evpose("dataset", "refine", dataset_copy, "--workers", "2", "--windows", "12", "--json", "-q")
     assert r.returncode == 0, r.stderr
@@ -337,6 +358,7 @@ def test_dataset_refine_dry_run_touches_nothing_and_apply_equals_the_single_scen
             assert "+-" in c["text"] and (c.get("offset_std_us") or c.get("std_mm")), c
     text = _evpose("dataset", "refine", dataset_copy, "--workers", "1", "--windows", "12", "--dry-run", "-q")
     assert text.returncode == 0 and "would apply" in text.stdout and _snapshot(dataset_copy) == before
+    _apply_proposals(proposed, dry)
     r = _evpose("dataset", "refine", dataset_copy, "--workers", "2", "--windows", "12", "--apply", "--json", "-q")
     assert r.returncode == 0, r.stderr
     applied = json.loads(r.stdout)["scenes"]
@@ -353,6 +375,8 @@ def test_dataset_refine_dry_run_touches_nothing_and_apply_equals_the_single_scen
         theirs = json.loads((single / name / "corrections.json").read_text())
         _same_numbers({k: v for k, v in mine.items() if k != "saved_at"},
                       {k: v for k, v in theirs.items() if k != "saved_at"})
+        if dry[name]["changes"]:      # the dataset view's Apply: the dry run's proposal stores the same corrections
+            assert json.loads((proposed / name / "corrections.json").read_text()) == mine
     again = json.loads(_evpose("dataset", "refine", dataset_copy, "--workers", "2", "--windows", "12", "--json",
                                "-q").stdout)["scenes"]
     assert all(not any(c["part"] == "clock" for c in d["changes"]) for d in again.values())

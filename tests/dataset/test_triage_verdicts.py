@@ -108,11 +108,16 @@ def test_the_report_ranks_wrong_scenes_by_cause_and_refine_apply_clears_them(tri
     r = _evpose("dataset", "refine", root, "--apply", "--only-flagged", tmp_path / "report.json", "--windows", "16",
                 "--workers", "2", "--json", "-q")
     assert r.returncode == 0, r.stderr
-    assert set(json.loads(r.stdout)["scenes"]) == {"b_clock", "c_pose", "d_mounting"}
+    refined = json.loads(r.stdout)["scenes"]
+    assert set(refined) == {"b_clock", "c_pose", "d_mounting"}
+    # the mounting scene: the hand-eye is stored, not a clock and object poses bent to absorb it
+    assert [c["part"] for c in refined["d_mounting"]["changes"]] == ["hand-eye"], refined["d_mounting"]["changes"]
+    assert all(c["part"] != "hand-eye" for n in ("b_clock", "c_pose") for c in refined[n]["changes"])
     after = _report(root, tmp_path / "report.html")                # the same --out: compared with the last one
     left = {e["scene"] for e in after["scenes_ranked"]}
-    assert {"b_clock", "c_pose"} <= set(after["since_last"]["resolved"]) and after["since_last"]["new"] == []
+    assert {"b_clock", "c_pose", "d_mounting"} <= set(after["since_last"]["resolved"])
+    assert after["since_last"]["new"] == []
     assert json.loads((tmp_path / "report.json").read_text())["since_last"] == after["since_last"]
-    assert "b_clock" not in left and "c_pose" not in left, after["scenes_ranked"]
+    assert not left & {"b_clock", "c_pose", "d_mounting"}, after["scenes_ranked"]
     assert "e_broken" in left and "a_right" not in left
     assert _files(root / "a_right") == right_before                  # nothing written into the right scene
