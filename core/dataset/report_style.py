@@ -35,7 +35,8 @@ div.filter input[type=search]{flex:0 1 420px;padding:4px 8px;border:1px solid va
 div.thumbs{display:flex;flex-wrap:wrap;gap:12px;margin:8px 0}
 figure.thumb{margin:0;max-width:360px}figure.thumb img{width:346px;image-rendering:pixelated;border:1px solid var(--line)}
 figure.thumb figcaption{font-size:12px;color:var(--dim)}p.since ul{margin:2px 0 0;padding-left:18px}
-code.next{flex-basis:100%;margin-left:30px;font-size:12px;color:var(--dim);word-break:break-all}
+code.next{flex-basis:100%;margin-left:30px;font-size:12px;color:var(--dim);word-break:break-all;cursor:copy}
+code.next[data-copied]::after{content:"  copied";color:#1a7f37;font-family:sans-serif}
 .sev{display:inline-block;min-width:44px;text-align:center;border-radius:4px;padding:0 4px;font-size:12px;
 font-weight:700;color:#fff;font-variant-numeric:tabular-nums}
 .sev.fail{background:#7f1d1d}.sev.hi{background:var(--bad)}.sev.mid{background:var(--warn)}.sev.lo{background:#9ca3af}
@@ -114,4 +115,14 @@ document.querySelectorAll('table.sortable').forEach(function(t){
   if(h.indexOf('#filter=')===0){var p=h.slice(8).split('&');q.value=p[0];only.checked=p.indexOf('flagged')>0;}
   q.addEventListener('input',apply);only.addEventListener('change',apply);apply();
 })();
+document.querySelectorAll('code.next').forEach(function(c){   // the next command: a click copies it
+  c.setAttribute('role','button');c.title='click to copy: '+c.textContent;
+  function select(){var r=document.createRange();r.selectNodeContents(c);
+    var s=window.getSelection();s.removeAllRanges();s.addRange(r);}
+  function done(){c.dataset.copied='1';setTimeout(function(){delete c.dataset.copied;},1500);}
+  c.addEventListener('click',function(){
+    if(navigator.clipboard&&navigator.clipboard.writeText)navigator.clipboard.writeText(c.textContent).then(done,select);
+    else select();
+  });
+});
 """

@@ -294,3 +294,28 @@ def test_detail_pane_shows_a_failure_in_full(dwin):
     text = dwin.detail.text.toPlainText()
     assert f"FAILED: {long}" in text and "next: evpose info s3" in text and "  - unreadable" in text
     assert not dwin.detail.apply_button.isEnabled()
+
+
+def test_export_from_the_dataset_view(qtbot, dwin, dataset_dir, tmp_path):
+    """Export… runs ``dataset export`` on the cluster: the same files as the command, each scene's count in its
+    detail; a refused output folder (inside a scene) is one error line and starts nothing."""
+    out = tmp_path / "out"
+    job = dwin.run_batch("export", workers=1, fmt="epose", out=str(out))
+    assert job is not None and not dwin.export_action.isEnabled()
+    qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=300_000)
+    assert not dwin.last_batch.failed
+    for name in PRIORS_US:
+        assert any((out / name).glob("*_data.mat")), name
+        written = dwin.last_batch.scenes[name]["written"]
+        assert written > 0 and dwin.table.values(name)["exported"].startswith(f"{written} windows written")
+    dwin.table.select("s1")
+    assert "export: " in dwin.detail.text.toPlainText()
+
+
+def test_export_dialog_refuses_a_folder_inside_a_scene(dwin, dataset_dir, window, monkeypatch):
+    from PySide6 import QtWidgets
+
+    monkeypatch.setattr(QtWidgets.QInputDialog, "getItem", lambda *a, **k: ("epose", True))
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getExistingDirectory", lambda *a, **k: str(dataset_dir / "s1"))
+    assert dwin.export_dialog() is None and dwin.batch_job is None
+    assert "s1" in window.last_error

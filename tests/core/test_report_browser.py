@@ -178,6 +178,11 @@ def test_the_scene_table_filters_in_chromium(doc, tmp_path):
     flagged = [r["name"] for r in doc["scenes"] if r["flags"]]
     assert len(shown("#filter=&flagged")) == len(flagged) < len(names)
     assert shown("#filter=seq_object") == ["seq_object"]
+    # each next command became a copy button (the script ran in the browser)
+    dom = chromium(["--dump-dom", html.as_uri()], tmp_path / "profile").stdout
+    nexts = re.findall(r'<code class="next"([^>]*)>(.*?)</code>', dom)
+    assert nexts and all(f'title="click to copy: {text}"' in attrs and 'role="button"' in attrs
+                         for attrs, text in nexts), nexts
 
 
 def test_report_renders_in_chromium(doc, tmp_path):
