@@ -91,6 +91,22 @@ class PlannedChange:
         return {"part": self.part, "name": self.name, "text": self.text, **self.values}
 
 
+def _clock_change(scene, offset_us, skew_ppm, offset_std_us, skew_std_ppm) -> tuple[str, dict]:
+    """The line and the JSON values of a planned clock change from the clock in effect to ``offset_us`` (and
+    ``skew_ppm`` when not None), with their standard errors."""
+    now = scene.clock
+    d_us = float(offset_us - now.offset_us)
+    text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {_num(offset_std_us, 1e-3, 3)})"
+    vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(offset_us), "offset_change_us": d_us,
+            "offset_std_us": offset_std_us}
+    if skew_ppm is not None:
+        text += f", skew {now.skew_ppm:+.1f} -> {skew_ppm:+.1f} ppm"
+        if skew_std_ppm is not None:
+            text += f" (+- {_num(skew_std_ppm, 1.0, 1)})"
+        vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(skew_ppm), skew_std_ppm=skew_std_ppm)
+    return text, vals
+
+
 def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) -> tuple[list, list]:
     """What :func:`apply_joint_result` would store of an accepted joint refinement, without storing anything:
     ``(changes, kept)`` -- the :class:`PlannedChange` of each part that differs from what is in effect by more
@@ -104,16 +120,8 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
     p = result.params
     if clock and p.clock:
         skew = result.skew_ppm if result.skew_estimated else None
-        now = scene.clock
         if clock_differs(scene, result.offset_us, skew, result.offset_std_us, result.skew_std_ppm):
-            d_us = float(result.offset_us - now.offset_us)
-            text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {_num(result.offset_std_us, 1e-3, 3)})"
-            vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(result.offset_us),
-                    "offset_change_us": d_us, "offset_std_us": result.offset_std_us}
-            if skew is not None:
-                text += f", skew {now.skew_ppm:+.1f} -> {skew:+.1f} ppm (+- {_num(result.skew_std_ppm, 1.0, 1)})"
-                vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(skew),
-                            skew_std_ppm=result.skew_std_ppm)
+            text, vals = _clock_change(scene, result.offset_us, skew, result.offset_std_us, result.skew_std_ppm)
 
             def store_clock(history, text_, r=result):
                 # the total clock the fit used: its own skew, or the start's it kept (for sync, the rate estimate's)
@@ -178,14 +186,7 @@ def plan_sync(scene, result: SyncResult) -> list:
     skew_std = getattr(result, "skew_std_ppm", None)
     if not clock_differs(scene, result.offset_us, result.skew_ppm, result.offset_std_us, skew_std):
         return []
-    now = scene.clock
-    d_us = float(result.offset_us - now.offset_us)
-    vals = {"offset_from_us": int(now.offset_us), "offset_to_us": int(result.offset_us), "offset_change_us": d_us,
-            "offset_std_us": result.offset_std_us}
-    text = f"clock: offset {d_us / 1e3:+.3f} ms (+- {_num(result.offset_std_us, 1e-3, 3)})"
-    if result.skew_ppm is not None:
-        vals.update(skew_from_ppm=float(now.skew_ppm), skew_to_ppm=float(result.skew_ppm), skew_std_ppm=skew_std)
-        text += f", skew {now.skew_ppm:+.1f} -> {result.skew_ppm:+.1f} ppm"
+    text, vals = _clock_change(scene, result.offset_us, result.skew_ppm, result.offset_std_us, skew_std)
 
     def store(history, text_):
         apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text_)
