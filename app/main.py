@@ -144,6 +144,7 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
 
         def tick():
             if window.last_error:           # a view could not be computed: report it, do not wait for it
+                timer.stop()
                 sys.stderr.write(f"evpose gui: error: {_one_line(window.last_error)}\n")
                 app.exit(2)
                 return
@@ -152,12 +153,14 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
             if dataset:
                 drawn = shown is not None and shown.rows_loaded()
             if t_start.elapsed() >= wait_s * 1000 and drawn:
+                timer.stop()                # closing may run the event loop: no second tick saves a closed window
                 if screenshot:
                     path = shown.save_screenshot(screenshot)
                     sys.stderr.write(f"evpose gui: screenshot saved to {path}\n")
                 window.close()
                 app.quit()
             elif t_start.elapsed() > (wait_s + 60) * 1000:  # never hang
+                timer.stop()
                 sys.stderr.write("evpose gui: the first frame did not arrive in time\n")
                 app.exit(3)
 
