@@ -200,6 +200,9 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.addDockWidget(QtCore.Qt.BottomDockWidgetArea, dock)
         self.detail_dock = dock
         self._build_toolbar()
+        self.quit_action = QtGui.QAction("Quit", self, shortcut=QtGui.QKeySequence.Quit)
+        self.quit_action.triggered.connect(self.quit_app)
+        self.addAction(self.quit_action)
         self.statusBar().showMessage(f"{dataset.root} — double-click a scene to open it")
 
         self.watcher = QtCore.QFileSystemWatcher([str(ref.path) for ref in dataset.scenes], self)
@@ -506,6 +509,14 @@ class DatasetWindow(QtWidgets.QMainWindow):
         job.signals.finished.connect(forget)
         job.signals.failed.connect(forget)
         return job.start()
+
+    def quit_app(self) -> bool:
+        """Ctrl+Q here as in the main window: close the main window (which asks about unsaved corrections), then
+        this one; False when the main window stayed open."""
+        if not self.main.close():
+            return False
+        self.close()
+        return True
 
     # ------------------------------------------------------------------ screenshots, close
     def save_screenshot(self, path) -> Path:

@@ -9,6 +9,9 @@ Rules
 - Every side dock's content sits in a :func:`scrolled` area (:class:`PanelScroll`), so the window's minimum size does not depend on
   the panels' contents: the whole layout fits a 1280×720 screen, and a text that gets longer (a readout,
   a status line) scrolls or wraps inside its dock instead of moving the frame view.
+- On a window lower than :data:`COMPACT_BELOW_H` (a laptop screen) the review marks are a tab beside the space-time
+  view instead of under it (:func:`compact`): the space-time view gets the left column's height (its canvas >= 250 px
+  at 1366×768), the review list its own tab.
 - The timeline keeps its plots at a useful height (:data:`evpose.widgets.timeline_style.MIN_PLOT_H`); its dock has
   no title bar (no close button beside "Fit": it is shown and hidden from View ▸ Panels).
 """
@@ -19,7 +22,9 @@ from PySide6 import QtCore, QtWidgets
 #: The smallest first size of the window (clamped to the screen's available area; see :func:`first_size`).
 PREFERRED_SIZE = (1500, 950)
 #: Saved dock layouts of another version are not restored (their sizes may not fit the current panels).
-LAYOUT_VERSION = 2
+LAYOUT_VERSION = 3
+#: Below this window height (px) the left column tabs the review marks with the space-time view (:func:`compact`).
+COMPACT_BELOW_H = 900
 #: Smallest useful size of each part of the window, px (the layout check's thresholds).
 MIN_FRAME_VIEW = (300, 220)
 MIN_DOCK = (200, 80)
@@ -111,17 +116,23 @@ def fit_to_screen(window: QtWidgets.QWidget, size=None) -> QtCore.QRect:
     return rect
 
 
+def compact(window: QtWidgets.QWidget) -> bool:
+    """Whether the window is too low to stack the space-time view and the review marks (:data:`COMPACT_BELOW_H`)."""
+    return window.height() < COMPACT_BELOW_H
+
+
 def default_dock_sizes(window, spacetime, review, corrections, timeline) -> None:
     """Share the window between the frame view and the docks in proportion to its size: the side columns
-    take 28 and 30 % (never below what their controls need), the timeline a quarter of the height."""
+    take 28 and 30 % (never below what their controls need), the timeline 22 % of the height (140-280 px)."""
     w, h = window.width(), window.height()
     left = int(min(max(0.28 * w, 360, content_width(spacetime), content_width(review)), 560))
     right = int(min(max(0.30 * w, 400, content_width(corrections)), 520))
     window.resizeDocks([spacetime, corrections], [left, right], QtCore.Qt.Horizontal)
-    tl = int(min(max(0.25 * h, 180), 280))
+    tl = int(min(max(0.22 * h, 140), 280))
     window.resizeDocks([timeline], [tl], QtCore.Qt.Vertical)
-    column = max(h - tl - 60, 300)
-    window.resizeDocks([spacetime, review], [int(column * 0.55), int(column * 0.45)], QtCore.Qt.Vertical)
+    if not window.tabifiedDockWidgets(spacetime):
+        column = max(h - tl - 60, 300)
+        window.resizeDocks([spacetime, review], [int(column * 0.55), int(column * 0.45)], QtCore.Qt.Vertical)
 
 
 def content_width(dock: QtWidgets.QDockWidget) -> int:
@@ -146,7 +157,7 @@ def layout_problems(window) -> list[str]:
     out = []
     central = window.centralWidget()
     parts = [("frame view", central)] + [(d.windowTitle(), d) for d in window.findChildren(QtWidgets.QDockWidget)
-                                         if d.parent() is window and not d.isHidden()]
+                                         if d.parent() is window and not d.isHidden() and not _behind_a_tab(window, d)]
     inner = window.rect()
     rects = []
     for name, w in parts:
@@ -169,6 +180,11 @@ def layout_problems(window) -> list[str]:
     if window.frameGeometry().width() > avail.width() or window.frameGeometry().height() > avail.height():
         out.append(f"window {_rect(window.frameGeometry())} larger than the screen's {_rect(avail)}")
     return out
+
+
+def _behind_a_tab(window, dock) -> bool:
+    """A dock tabbed with others and not the tab in front (one click brings it)."""
+    return bool(window.tabifiedDockWidgets(dock)) and dock.visibleRegion().isEmpty()
 
 
 def _rect(r: QtCore.QRect) -> str:

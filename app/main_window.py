@@ -10,6 +10,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from evpose.app import actions as A
 from evpose.app import frame_actions
 from evpose.app import layout as L
+from evpose.app.wheel_guard import install_wheel_guard
 from evpose.app.align import AlignController
 from evpose.app.controller import Controller
 from evpose.app.dialog_place import DialogPlacer
@@ -49,6 +50,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def __init__(self, settings: Settings | None = None):
         super().__init__()
+        install_wheel_guard(QtWidgets.QApplication.instance())     # the wheel scrolls panels, not their values
         self.settings = settings or Settings()
         self.session: Session | None = None
         self.controller = Controller(self)
@@ -263,7 +265,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.frame_view = FrameView(session)
         frame_actions.attach(self, self.frame_view)      # key hints; hover text in the status bar
         self.setCentralWidget(self.frame_view)
-        self.panel = CorrectionPanel(session)
+        self.panel = CorrectionPanel(session, compact=L.compact(self))      # tabs on a laptop screen
         self.objects = ObjectList(session)
         self.reviews = ReviewPanel(session)
         self.timeline = Timeline(session)
@@ -282,8 +284,12 @@ class MainWindow(QtWidgets.QMainWindow):
         self._add_dock("Review", L.scrolled(self.reviews), QtCore.Qt.LeftDockWidgetArea, "dock_review")
         self._add_dock("Space-time (x, y, t)", L.scrolled(self.spacetime), QtCore.Qt.LeftDockWidgetArea,
                        "dock_spacetime")
-        # review marks under the space-time view: the right column keeps its height for corrections
-        self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
+        # review marks under the space-time view (a tab beside it on a laptop screen, L.compact): the right column
+        # keeps its height for corrections
+        if L.compact(self):
+            self.tabifyDockWidget(self._docks[2], self._docks[1])
+        else:
+            self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
         self._add_dock("Timeline", self.timeline, QtCore.Qt.BottomDockWidgetArea, "dock_timeline")
         L.bare_title(self._docks[3])    # no close button beside "Fit" (View ▸ Panels shows and hides it)
         self._docks[2].visibilityChanged.connect(self._spacetime_visibility)
@@ -312,6 +318,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if len(self._docks) < 4:
             return
         d = self._docks
+        d[2].raise_()                        # the space-time view in front of its tabs (review marks, kymograph)
         L.default_dock_sizes(self, spacetime=d[2], review=d[1], corrections=d[0], timeline=d[3])
 
     def ensure_timeline_height(self, px: int) -> None:

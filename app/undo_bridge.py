@@ -4,6 +4,7 @@ from __future__ import annotations
 from PySide6 import QtGui, QtWidgets
 
 from evpose.core.document.history import History
+from evpose.core.document.journal import unsaved
 from evpose.core.signals import Change
 
 
@@ -27,7 +28,7 @@ class UndoBridge:
         self.redo_action.setEnabled(h.can_redo)
         self.undo_action.setText(f"&Undo {h.undo_text}" if h.can_undo else "&Undo")
         self.redo_action.setText(f"&Redo {h.redo_text}" if h.can_redo else "&Redo")
-        self.window.setWindowModified(not h.is_clean)
+        self.window.setWindowModified(not h.is_clean and unsaved(h.doc))      # edits that cancel out: not modified
 
     def detach(self) -> None:
         self._connection.disconnect()

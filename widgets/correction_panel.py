@@ -77,21 +77,40 @@ class CorrectionPanel(QtWidgets.QWidget):
     -------
     autoSyncRequested(), edgeSyncRequested(), refineRequested(str)
         Emitted by the Auto / Edges / Refine buttons (the app runs the estimation in a worker).
+
+    ``compact``: the three groups are tabs (``tabs``) instead of a column, so each group's controls fit a laptop
+    screen's dock without scrolling.
     """
 
     autoSyncRequested = QtCore.Signal()
     edgeSyncRequested = QtCore.Signal()
     refineRequested = QtCore.Signal(str)
 
-    def __init__(self, session: Session, parent=None):
+    def __init__(self, session: Session, parent=None, compact: bool = False):
         super().__init__(parent)
         self.session = session
         self._updating = False
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
-        lay.addWidget(self._clock_group())
-        lay.addWidget(self._object_group())
-        lay.addWidget(self._hand_eye_group())
+        groups = (("Clock", self._clock_group()), ("Object pose", self._object_group()),
+                  ("Hand-eye", self._hand_eye_group()))
+        self.tabs = QtWidgets.QTabWidget() if compact else None
+        for tab, group in groups:
+            if self.tabs is None:
+                lay.addWidget(group)
+                continue
+            group.setToolTip(group.title())
+            group.setTitle("")
+            group.setFlat(True)
+            page = QtWidgets.QWidget()
+            pl = QtWidgets.QVBoxLayout(page)
+            pl.setContentsMargins(0, 0, 0, 0)
+            pl.addWidget(group)
+            pl.addStretch(1)
+            self.tabs.addTab(page, tab)
+        if self.tabs is not None:
+            self.tabs.setDocumentMode(True)
+            lay.addWidget(self.tabs)
         lay.addStretch(1)
         connect_view(self, session.changed, self._on_session)
         self.refresh()

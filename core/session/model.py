@@ -111,7 +111,9 @@ class Session:
 
     @property
     def dirty(self) -> bool:
-        return not self.history.is_clean
+        """Unsaved work: edits since the last save (the history's clean mark) that changed the content (edits that
+        cancel out, a nudge and its opposite, leave nothing to save)."""
+        return not self.history.is_clean and self.unsaved
 
     @property
     def unsaved(self) -> bool:

@@ -7,7 +7,7 @@ import re
 import shutil
 
 import pytest
-from PySide6 import QtCore
+from PySide6 import QtCore, QtGui
 
 from evpose.core.dataset.tasks import review_progress, score_task
 from evpose.widgets.dataset_table import SORT_ROLE
@@ -319,3 +319,9 @@ def test_export_dialog_refuses_a_folder_inside_a_scene(dwin, dataset_dir, window
     monkeypatch.setattr(QtWidgets.QFileDialog, "getExistingDirectory", lambda *a, **k: str(dataset_dir / "s1"))
     assert dwin.export_dialog() is None and dwin.batch_job is None
     assert "s1" in window.last_error
+
+
+def test_ctrl_q_in_the_dataset_view_quits(qtbot, dwin, window):
+    assert dwin.quit_action.shortcut() == QtGui.QKeySequence(QtGui.QKeySequence.Quit)
+    dwin.quit_action.trigger()
+    assert not window.isVisible() and not dwin.isVisible()

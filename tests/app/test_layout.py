@@ -42,8 +42,27 @@ def test_the_window_fits_a_laptop_screen_with_every_dock_visible(qtbot, window, 
     settle(qtbot, 300)
     assert layout_problems(window) == []
     docks = [d for d in window.findChildren(QtWidgets.QDockWidget) if d.parent() is window]
-    assert {d.objectName() for d in docks if d.isVisible()} >= {"dock_corrections", "dock_review", "dock_spacetime",
-                                                                   "dock_timeline"}
+    assert {d.objectName() for d in docks if d.isVisible()} >= {"dock_corrections", "dock_spacetime", "dock_timeline"}
+    # a laptop screen: the review marks are a tab beside the space-time view, whose canvas keeps >= 250 px
+    review = window.findChild(QtWidgets.QDockWidget, "dock_review")
+    assert review in window.tabifiedDockWidgets(window._docks[2])
+    assert window.spacetime.canvas.native.height() >= 250, window.spacetime.canvas.native.height()
+    # each tab of the corrections (clock, object pose with Refine, hand-eye) in sight without scrolling; the
+    # timeline <= 25 % of the height
+    scroll = window._docks[0].widget()
+    tabs = window.panel.tabs
+    assert tabs is not None and [tabs.tabText(i) for i in range(tabs.count())] == ["Clock", "Object pose", "Hand-eye"]
+    for i in range(tabs.count()):
+        tabs.setCurrentIndex(i)
+        settle(qtbot, 50)
+        for control in tabs.widget(i).findChildren(QtWidgets.QAbstractButton) + \
+                tabs.widget(i).findChildren(QtWidgets.QAbstractSpinBox):
+            if control.isVisibleTo(tabs.widget(i)):
+                top_left = control.mapTo(scroll.viewport(), QtCore.QPoint(0, 0))
+                assert scroll.viewport().rect().contains(QtCore.QRect(top_left, control.size())), \
+                    f"{tabs.tabText(i)}: {control.objectName() or control.text()} is scrolled away"
+    assert window.panel.refine_button.isVisibleTo(tabs.widget(1))
+    assert window._docks[3].height() <= 0.25 * window.height() + 1
     # the side panels scroll inside their docks instead of pushing the window; at the first layout none needs a
     # horizontal scroll bar, and the space-time view shrinks its canvas rather than scroll
     scroll = window._docks[0].widget()

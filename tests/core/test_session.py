@@ -282,9 +282,9 @@ def test_the_journal_lives_only_while_there_is_unsaved_work(session):
     session.history.redo()
     session.history.redo()
     assert session.write_journal() is not None
-    session.set_offset_correction_us(1, mergeable=False)   # edits that cancel out: the document is dirty ...
-    session.remove_review(mark)                            # ... but equal to the file again
-    assert session.dirty
+    session.set_offset_correction_us(1, mergeable=False)   # edits that cancel out: off the history's clean mark ...
+    session.remove_review(mark)                            # ... but equal to the file again: nothing to save
+    assert not session.history.is_clean and not session.dirty
     assert not session.unsaved and not session.journal_path.exists()
     assert session.write_journal() is None                 # nothing to keep
     session.set_offset_correction_us(3, mergeable=False)
