@@ -10,6 +10,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from evpose.app import actions as A
 from evpose.app import frame_actions
 from evpose.app import layout as L
+from evpose.app.residual_feed import ResidualFeed
 from evpose.app.wheel_guard import install_wheel_guard
 from evpose.app.align import AlignController
 from evpose.app.controller import Controller
@@ -94,6 +95,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.spacetime_worker.failed.connect(self._worker_failed)
         kymograph_kc = KymographComputer(self.event_cache)    # the x-t slice; label maps cached by time and pose
         self.kymograph_worker = LatestWorker(kymograph_kc.stages, "kymograph-worker")
+        self.residual_feed = ResidualFeed(self)      # the residual view (events vs the labels' edges)
         self.kymograph_worker.done.connect(self._kymograph_ready)
         self.kymograph_worker.failed.connect(self._worker_failed)
         self._kymograph_serial = 0          # the last submitted request (older results are dropped)
@@ -294,6 +296,8 @@ class MainWindow(QtWidgets.QMainWindow):
         L.bare_title(self._docks[3])    # no close button beside "Fit" (View ▸ Panels shows and hides it)
         self._docks[2].visibilityChanged.connect(self._spacetime_visibility)
         self._add_kymograph_dock(session)
+        self.residual_feed.attach(session, self._add_dock, self._docks[2])
+        self.panel.residualsRequested.connect(self.residual_feed.show)
         # the timeline spans the full width under the side docks
         self.setCorner(QtCore.Qt.BottomLeftCorner, QtCore.Qt.BottomDockWidgetArea)
         self.setCorner(QtCore.Qt.BottomRightCorner, QtCore.Qt.BottomDockWidgetArea)
@@ -328,13 +332,14 @@ class MainWindow(QtWidgets.QMainWindow):
         if dock is not None and not dock.isFloating() and dock.height() < px:
             self.resizeDocks([dock], [px], QtCore.Qt.Vertical)
 
-    def _add_dock(self, title: str, widget: QtWidgets.QWidget, area, name: str) -> None:
+    def _add_dock(self, title: str, widget: QtWidgets.QWidget, area, name: str) -> QtWidgets.QDockWidget:
         dock = QtWidgets.QDockWidget(title, self)
         dock.setObjectName(name)
         dock.setWidget(widget)
         self.addDockWidget(area, dock)
         self.docks_menu.addAction(dock.toggleViewAction())
         self._docks.append(dock)
+        return dock
 
     def _teardown_session(self) -> None:
         if self.session is None:
@@ -360,6 +365,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.kymograph is not None:
             self.kymograph.shutdown()
             self.kymograph = None
+        self.residual_feed.detach()
         self._kymograph_serial = 1 << 62    # late kymographs of this session are dropped
         # late worker results for the old session must find no views (they are being deleted)
         self.frame_view = self.panel = self.reviews = self.timeline = self.spacetime = self.objects = None
@@ -574,6 +580,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.frame_worker.stop()
         self.spacetime_worker.stop()
         self.kymograph_worker.stop()
+        self.residual_feed.stop()
         if self.dataset_window is not None:
             self.dataset_window.close()
         event.accept()

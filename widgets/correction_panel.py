@@ -75,8 +75,9 @@ class CorrectionPanel(QtWidgets.QWidget):
 
     Signals
     -------
-    autoSyncRequested(), edgeSyncRequested(), refineRequested(str)
-        Emitted by the Auto / Edges / Refine buttons (the app runs the estimation in a worker).
+    autoSyncRequested(), edgeSyncRequested(), refineRequested(str), residualsRequested()
+        Emitted by the Auto / Edges / Refine / Residuals buttons (the app runs the estimation in a worker, or shows
+        the residual view).
 
     ``compact``: the three groups are tabs (``tabs``) instead of a column, so each group's controls fit a laptop
     screen's dock without scrolling.
@@ -85,6 +86,7 @@ class CorrectionPanel(QtWidgets.QWidget):
     autoSyncRequested = QtCore.Signal()
     edgeSyncRequested = QtCore.Signal()
     refineRequested = QtCore.Signal(str)
+    residualsRequested = QtCore.Signal()
 
     def __init__(self, session: Session, parent=None, compact: bool = False):
         super().__init__(parent)
@@ -220,6 +222,11 @@ class CorrectionPanel(QtWidgets.QWidget):
         row.addWidget(self.refine_button)
         row.addWidget(reset)
         v.addLayout(row)
+        self.residuals_button = QtWidgets.QPushButton("Residuals")
+        self.residuals_button.setToolTip("show the events coloured by their distance to the labels' edges (red "
+                                         "outside the drawn outline, blue inside): depth and tilt errors show there")
+        self.residuals_button.clicked.connect(self.residualsRequested.emit)
+        row.addWidget(self.residuals_button)
         self.object_combo.currentTextChanged.connect(self._object_chosen)
         self.frame_combo.currentIndexChanged.connect(lambda _: self._refresh_object())
         self.refine_button.clicked.connect(lambda: self.refineRequested.emit(self.current_object() or ""))

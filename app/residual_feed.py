@@ -1,0 +1,106 @@
+"""The residual view's feed: session changes -> coalesced requests on a worker -> the widget (issue 25.1's pattern,
+its first client).
+
+The view is a dock tabbed with the space-time view, closed until asked for (View ▸ Panels, or the pose panel's
+Residuals button). While it is out of sight nothing is computed; when it comes into sight, and on every change of
+the time, the window, the shown objects or the document while it is in sight, one request is submitted to a
+:class:`~evpose.app.workers.LatestWorker` (a newer request replaces a pending one; late results are dropped by
+serial) that runs :func:`evpose.core.views.residuals.residuals` on the session's snapshot.
+"""
+from __future__ import annotations
+
+import time
+
+from PySide6 import QtCore, QtWidgets
+
+from evpose.app.workers import LatestWorker
+from evpose.core.signals import Change
+
+__all__ = ["ResidualFeed", "RESIDUAL_KINDS"]
+
+#: The session changes the residual view shows (display-only view options are not among them).
+RESIDUAL_KINDS = {"time", "document", "objects", "view"}
+
+
+def _compute(req):
+    from evpose.core.views.residuals import residuals
+
+    t = time.perf_counter()
+    w = req.view.window()
+    names = [n for n in req.scene.object_names if n not in req.view.hidden]
+    data = residuals(req.scene, w.t0_us, w.t1_us, names=names)
+    return data, 1000.0 * (time.perf_counter() - t)
+
+
+class ResidualFeed(QtCore.QObject):
+    """The residual view of ``window`` (a :class:`~evpose.app.main_window.MainWindow`): one worker for the window's
+    life; :meth:`attach` makes the dock and the view for a session, :meth:`detach` lets them go."""
+
+    def __init__(self, window):
+        super().__init__(window)
+        self.window = window
+        self.session = None
+        self.view = None
+        self.dock: QtWidgets.QDockWidget | None = None
+        self._connection = None
+        self._serial = 0
+        self.worker = LatestWorker(_compute, "residual-worker")
+        self.worker.done.connect(self._ready)
+        self.worker.failed.connect(self._failed)
+
+    def attach(self, session, add_dock, tab_with: QtWidgets.QDockWidget) -> QtWidgets.QDockWidget:
+        """Show ``session``'s residuals in a new dock made by ``add_dock(title, widget, area, name)`` (the window's,
+        which also removes it with the session), tabbed with ``tab_with`` and closed until asked for."""
+        from evpose.app import layout as L
+        from evpose.widgets.residual_view import ResidualView
+
+        self.detach()
+        self.session = session
+        self.view = ResidualView()
+        self.dock = add_dock("Residuals (events vs edges)", L.scrolled(self.view), QtCore.Qt.LeftDockWidgetArea,
+                             "dock_residuals")
+        self.window.tabifyDockWidget(tab_with, self.dock)
+        self.dock.hide()
+        self.dock.visibilityChanged.connect(lambda on: on and QtCore.QTimer.singleShot(0, self.request))
+        self._connection = session.changed.connect(self._on_change)
+        return self.dock
+
+    def detach(self) -> None:
+        if self._connection is not None:
+            self._connection.disconnect()
+            self._connection = None
+        self.session = self.view = self.dock = None
+        self._serial = 1 << 62               # late results of the old session are dropped
+
+    def show(self) -> None:
+        if self.dock is not None:
+            self.dock.show()
+            self.dock.raise_()
+
+    def in_sight(self) -> bool:
+        return self.dock is not None and not self.dock.isHidden() and not self.dock.visibleRegion().isEmpty()
+
+    def _on_change(self, change: Change) -> None:
+        if change.kind in RESIDUAL_KINDS:
+            self.request()
+
+    def request(self) -> None:
+        """Submit the session's state, unless the view is out of sight (computed when shown)."""
+        if self.session is None or not self.in_sight():
+            return
+        req = self.session.request()
+        self._serial = req.serial
+        self.worker.submit(req)
+
+    def _ready(self, result, serial: int) -> None:
+        if self.view is not None and serial >= self._serial:
+            data, ms = result
+            self.view.set_data(data, ms)
+
+    def _failed(self, message: str, serial: int) -> None:
+        if self.view is not None and serial >= self._serial:
+            self.view.status.setText("could not compute: " + message.strip().splitlines()[-1][:300])
+
+    def stop(self) -> None:
+        self.detach()
+        self.worker.stop()
