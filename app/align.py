@@ -40,7 +40,7 @@ class AlignController(QtCore.QObject):
         self.edge_windows = 24
 
     # ------------------------------------------------------------------ plumbing
-    def _run(self, title: str, fn, on_done) -> Job | None:
+    def _run(self, title: str, fn, on_done, on_cancel=None) -> Job | None:
         session = self.window.session
         if session is None:
             return None
@@ -59,6 +59,8 @@ class AlignController(QtCore.QObject):
             self.jobs.remove(job)
             if message == "cancelled":
                 self.window.statusBar().showMessage(f"{title.lower()} cancelled", 5000)
+                if on_cancel is not None and self.window.session is session:
+                    on_cancel(session)
             else:
                 self.window.controller.error(title, message, details)
 
@@ -144,7 +146,16 @@ class AlignController(QtCore.QObject):
         return self._run("Score all windows",
                          lambda scene, progress, cancel: score_windows(scene, window_us=window_us, progress=progress,
                                                                        cancel=cancel),
-                         lambda s, table: self._scores_done(s, table, window_us, key))
+                         lambda s, table: self._scores_done(s, table, window_us, key), self._scores_cancelled)
+
+    def _scores_cancelled(self, session) -> None:
+        """Score all cancelled: scores still shown that are not of the document and window length now say so."""
+        row = self.window.score_row
+        if self.window.timeline is None or row.table is None:
+            return
+        if row.stale or row.window_us != int(session.view.window_us):
+            self.window.timeline.set_scores_stale(True, f"not current — Score all cancelled (shown: {row.window_us / 1000:g} "
+                                                        "ms windows)")
 
     def _scores_done(self, session, table, window_us: int, key) -> None:
         self.last_scores = table

@@ -204,6 +204,11 @@ class CorrectionPanel(QtWidgets.QWidget):
         row.addWidget(self.trans_step)
         row.addWidget(self.rot_step)
         row.addStretch(1)
+        self.type_button = QtWidgets.QPushButton("Type…")
+        self.type_button.setToolTip("move the object by typed amounts (mm, degrees, in the axes above) or set its "
+                                    "pose in the base frame to typed values")
+        self.type_button.clicked.connect(self.type_pose)
+        row.addWidget(self.type_button)
         v.addLayout(row)
         self.object_nudges = _NudgeGrid()
         self.object_nudges.nudged.connect(lambda k, a, s: self.nudge_object(k, a, s))
@@ -232,6 +237,32 @@ class CorrectionPanel(QtWidgets.QWidget):
         self.refine_button.clicked.connect(lambda: self.refineRequested.emit(self.current_object() or ""))
         reset.clicked.connect(lambda: self.current_object() and self.session.reset(self.current_object()))
         return g
+
+    def type_pose(self, dialog=None) -> bool:
+        """Ask for a typed move or pose of the selected object (:class:`~evpose.widgets.pose_entry.PoseEntryDialog`;
+        ``dialog`` replaces the modal one in tests) and apply it as one undo step; False when nothing was applied."""
+        from evpose.widgets.pose_entry import PoseEntryDialog
+
+        name = self.current_object()
+        if not name:
+            return False
+        dlg = dialog or PoseEntryDialog(name, self.frame_combo.currentText(), self.session.scene.T_base_obj(name),
+                                        self)
+        if dialog is None and dlg.exec() != QtWidgets.QDialog.Accepted:
+            return False
+        values = dlg.result_values()
+        if values is None:
+            return False
+        try:
+            if values[0] == "move":
+                self.session.nudge_object(name, self.current_frame(), rot_deg=values[2], trans_mm=values[1],
+                                          mergeable=False)
+            else:
+                self.session.set_object_pose(name, values[1])
+        except ValueError as exc:            # no camera pose here for camera axes: say so, change nothing
+            QtWidgets.QToolTip.showText(self.type_button.mapToGlobal(self.type_button.rect().bottomLeft()), str(exc))
+            return False
+        return True
 
     def _hand_eye_group(self) -> QtWidgets.QGroupBox:
         g = QtWidgets.QGroupBox("Hand-eye (camera frame)")

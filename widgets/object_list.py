@@ -37,6 +37,7 @@ class ObjectList(QtWidgets.QTableWidget):
             self.setItem(r, 0, show)
             swatch = QtWidgets.QTableWidgetItem()
             swatch.setBackground(QtGui.QColor(*session.color(name)))
+            swatch.setFlags(QtCore.Qt.ItemIsEnabled)     # not selectable: the selected row keeps its colour
             self.setItem(r, 1, swatch)
             self.setItem(r, 2, QtWidgets.QTableWidgetItem(name))
             self.setItem(r, 3, QtWidgets.QTableWidgetItem(str(session.scene.manifest.objects[r].class_id)))

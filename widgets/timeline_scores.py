@@ -176,9 +176,13 @@ class ScoreRow:
             self.plot.addItem(item)   # add before setData: clipping needs the ViewBox
             item.setData(t_s, np.where(low[name], np.nan, s))
             self.items[name] = item
-            has_worst = self.worst_index(name) is not None
-            act = c.worst_menu.addAction(f"{name}" if has_worst or not np.isfinite(s).any()
-                                         else f"{name} — no window with enough evidence")
+            i = self.worst_index(name)
+            if i is not None:          # the value and where: which object to look at first shows in the menu
+                text = f"{name}: {s[i]:.3g} at {t_s[i]:.3f} s"
+            else:
+                text = name if not np.isfinite(s).any() else f"{name} — no window with enough evidence"
+            has_worst = i is not None
+            act = c.worst_menu.addAction(text)
             act.setIcon(swatch(self.color(name)))
             act.setEnabled(has_worst)
             act.triggered.connect(lambda _=False, n=name: self.goto_worst(n))

@@ -234,6 +234,16 @@ class Session:
         new = step @ self.scene.corrections.object_delta(name)
         self.history.set(("object", name), new, text=f"move {name}", mergeable=mergeable)
 
+    def set_object_pose(self, name: str, T_base_obj, text: str | None = None) -> None:
+        """Set object ``name``'s pose in the base frame to ``T_base_obj`` (4x4; e.g. typed by the user): its
+        correction becomes ``T_base_obj @ inv(T_base_obj of scene.toml)``, one undo step."""
+        from evpose.core.data.geometry import inv_T, validate_T
+
+        self.end_drag()
+        T, _ = validate_T(np.asarray(T_base_obj, dtype=np.float64), f"{name}: T_base_obj")
+        new = T @ inv_T(self.scene.manifest.object(name).T_base_obj)
+        self.history.set(("object", name), new, text=text or f"set the pose of {name}")
+
     # ------------------------------------------------------------------ direct manipulation (frame view)
     def begin_drag(self, name: str) -> bool:
         """Start dragging object ``name`` on the frame (selecting it). Each :meth:`drag_object` until

@@ -140,3 +140,19 @@ def test_a_score_all_table_supersedes_a_running_recompute(qtbot, window, scored)
         gate.set()
     qtbot.wait(50)
     assert row.table is table and row.window_us == 20_000 and not tl.scores_stale
+
+
+def test_a_cancelled_score_all_leaves_scores_of_another_window_length_marked(qtbot, window, scored):
+    """Scores of 10 ms windows shown, the window set to 5 ms, Score all cancelled: the row says it is not current
+    (it showed the old scores as if current); cancelling with the scores current leaves them as they are."""
+    s, tl = scored, window.timeline
+    job = window.align.score_all()
+    job.cancel()
+    qtbot.waitUntil(lambda: not window.align.jobs, timeout=60_000)
+    assert not tl.scores_stale                                    # current scores: nothing to say
+    s.set_window_us(5_000)
+    job = window.align.score_all()
+    job.cancel()
+    qtbot.waitUntil(lambda: not window.align.jobs, timeout=60_000)
+    assert tl.scores_stale and "Score all cancelled" in tl.score_row.stale_label.text
+    assert "10 ms windows" in tl.score_row.stale_label.text

@@ -144,3 +144,47 @@ def test_camera_axes_where_the_trajectory_has_no_camera_pose(panel, session, qtb
     d = session.scene.corrections.object_delta("box")
     np.testing.assert_allclose(d[:3, 3], [0.001 * panel.trans_step.currentData(), 0, 0], atol=1e-12)
     assert panel.object_delta.text().startswith("centre moved")
+
+
+def test_typed_move_and_typed_pose_are_one_undo_step_each(panel, session):
+    """Type…: "Move by" does what that many nudges do (mm / degrees in the panel's axes, about the box centre);
+    "Set pose" sets T_base_obj exactly (position mm, rotation vector degrees, base frame); an unchanged dialog
+    applies nothing."""
+    from scipy.spatial.transform import Rotation
+
+    from evpose.core.document.pose_edit import nudge_step
+    from evpose.widgets.pose_entry import PoseEntryDialog
+
+    name = panel.current_object()
+    T0 = session.scene.T_base_obj(name)
+    dlg = PoseEntryDialog(name, "base", T0)
+    assert dlg.result_values() is None                          # nothing typed: nothing to apply
+    dlg.tabs.setCurrentIndex(1)
+    assert dlg.result_values() is None                          # the pose as shown: nothing to apply
+    panel.frame_combo.setCurrentIndex(panel.frame_combo.findData("base"))
+    dlg.tabs.setCurrentIndex(0)
+    for b, v in zip(dlg.move_t + dlg.move_r, (1.5, 0.0, -2.0, 0.0, 3.0, 0.0)):
+        b.setValue(v)
+    n = len(session.history)
+    assert panel.type_pose(dlg)
+    expected = nudge_step("base", (0, 3.0, 0), (1.5, 0, -2.0), T0, np.eye(4),
+                          pivot_obj_m=session.scene.model(name).bbox_center_m) @ T0
+    np.testing.assert_allclose(session.scene.T_base_obj(name), expected, atol=1e-12)
+    assert len(session.history) == n + 1
+    # an exact pose: 10 mm up from the start, turned 5 degrees about base z
+    target = T0.copy()
+    target[:3, 3] += [0.0, 0.0, 0.010]
+    target[:3, :3] = Rotation.from_euler("z", 5, degrees=True).as_matrix() @ T0[:3, :3]
+    dlg = PoseEntryDialog(name, "base", session.scene.T_base_obj(name))
+    dlg.tabs.setCurrentIndex(1)
+    for b, v in zip(dlg.set_t, target[:3, 3] * 1e3):
+        b.setValue(v)
+    for b, v in zip(dlg.set_r, np.degrees(Rotation.from_matrix(target[:3, :3]).as_rotvec())):
+        b.setValue(v)
+    assert panel.type_pose(dlg)
+    got = session.scene.T_base_obj(name)
+    assert np.abs(got[:3, 3] - target[:3, 3]).max() < 1e-6                       # mm spin boxes: 3 decimals
+    assert np.degrees(Rotation.from_matrix(got[:3, :3] @ target[:3, :3].T).magnitude()) < 1e-3
+    assert len(session.history) == n + 2
+    session.history.undo()
+    np.testing.assert_allclose(session.scene.T_base_obj(name), expected, atol=1e-12)

@@ -13,6 +13,9 @@ def test_object_list_visibility_selection_scores(qtbot, session):
     assert w.item(0, 0).checkState() == QtCore.Qt.Checked
     w.selectRow(2)
     assert session.view.selected == session.object_names[2]
+    # the selected row keeps its colour swatch (the selection does not paint over it)
+    assert w.item(2, 2).isSelected() and not w.item(2, 1).isSelected()
+    assert w.item(2, 1).background().color().getRgb()[:3] == session.color(session.object_names[2])
     w.set_scores({"box": 0.234, "cylinder": None})
     assert w.item(0, 5).text() == "+0.23" and w.item(1, 5).text() == "–"
     session.nudge_object("box", "base", trans_mm=(1, 0, 0))

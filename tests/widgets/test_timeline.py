@@ -290,7 +290,8 @@ def test_scores_curves_and_worst_window(tl, session, qtbot):
     with pytest.raises(KeyError):
         tl.worst_time("nope")
     # through the menu: moves there and tells the app
-    act = next(a for a in tl.worst_menu.actions() if a.text() == "box")
+    act = next(a for a in tl.worst_menu.actions() if a.text().startswith("box:"))
+    assert act.text() == f"box: {scores['box'][42]:.3g} at {t_s[42]:.3f} s"      # the value and where
     with qtbot.waitSignal(tl.worstRequested) as req, qtbot.waitSignal(tl.scrubbed):
         act.trigger()
     assert req.args == ["box"] and session.view.t_us == t0 + 425_000
@@ -327,8 +328,8 @@ def test_low_evidence_windows_are_drawn_apart_and_never_the_worst(tl, session, q
     tl.set_scores(t_s, scores, low_evidence=low)
     assert tl.worst_time("box") == t0 + 635_000
     assert tl.worst_time("flatbox") is None
-    act = {a.text().split(" ")[0]: a for a in tl.worst_menu.actions()}
-    assert act["box"].isEnabled() and act["box"].text() == "box"
+    act = {a.text().split(" ")[0].rstrip(":"): a for a in tl.worst_menu.actions()}
+    assert act["box"].isEnabled() and act["box"].text() == f"box: {scores['box'][63]:.3g} at {t_s[63]:.3f} s"
     assert not act["flatbox"].isEnabled() and "no window with enough evidence" in act["flatbox"].text()
     with qtbot.waitSignal(tl.worstRequested):
         act["box"].trigger()
