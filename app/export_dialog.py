@@ -16,6 +16,7 @@ from pathlib import Path
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.export.windows import build_windows, scene_staleness, verified_mask
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 FORMATS = (("epose", "E-POSE layout (per-window PNG/.mat/.txt)"), ("bop", "BOP (undistorted)"),
            ("h5", "HDF5 (one file, streaming)"))
@@ -29,7 +30,7 @@ class _Span:
     t1_us: int
 
 
-def window_counts(scene, *, window_us: int = 10_000, window_events: int | None = None,
+def window_counts(scene, *, window_us: int = DEFAULT_WINDOW_US, window_events: int | None = None,
                   include_stale: bool = False) -> tuple[int, int | None]:
     """``(windows the export tiles the recording into, windows "only verified" keeps)``; the second is None
     when there are too many windows to count quickly."""

@@ -14,10 +14,9 @@ from evpose.app.cli.errors import CliError, command
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 from evpose.core.errors import InputError
+from evpose.core.label.windows import DEFAULT_WINDOW_US     # when neither --window-ms nor --window-events is given
 
 __all__ = ["add_export_parser", "cmd_export", "summary_text", "format_options_from_args"]
-#: Window length when neither --window-ms nor --window-events is given (µs).
-DEFAULT_WINDOW_US = 10_000
 
 
 def add_export_parser(subparsers) -> argparse.ArgumentParser:

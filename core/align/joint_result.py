@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evpose.core.align.refine_result import RefineParams, json_number
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["JOINT_SIGMAS_PX", "JointParams", "JointResult", "ObjectFit", "json_number"]
 
@@ -30,7 +31,7 @@ class JointParams:
     objects: tuple | None = None
     hand_eye: bool = False
     n_windows: int = 24
-    window_us: int = 10_000
+    window_us: int = DEFAULT_WINDOW_US
     max_events: int = 12_000
     sigmas_px: tuple | None = None         # px of the scene camera; None: JOINT_SIGMAS_PX scaled by fx / 146
     outer_per_level: int = 4

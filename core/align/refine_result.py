@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["DEFAULT_SIGMAS_PX", "RefineParams", "RefineResult", "json_number"]
 
@@ -37,7 +38,7 @@ class RefineParams:
     """
 
     n_windows: int = 24
-    window_us: int = 10_000
+    window_us: int = DEFAULT_WINDOW_US
     max_events: int = 20_000
     sigmas_px: tuple | None = None
     outer_per_level: int = 8

@@ -31,6 +31,7 @@ from evpose.core.align.score_evidence import (
 )
 from evpose.core.data.events import Cancelled
 from evpose.core.label.raster import Rasterizer
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["ScoreTable", "score_windows", "worst_note", "worst_window"]
 
@@ -160,7 +161,7 @@ def worst_note(table: ScoreTable, name: str) -> str | None:
     return f"no window has enough evidence: {n_low} low-evidence windows ({why})"
 
 
-def score_windows(scene, windows=None, objects=None, *, window_us: int = 10_000, clock=None,
+def score_windows(scene, windows=None, objects=None, *, window_us: int = DEFAULT_WINDOW_US, clock=None,
                   params: ScoreParams = ScoreParams(), poses=None, raster: Rasterizer | None = None,
                   evidence: EvidenceParams = EvidenceParams(), progress=None, cancel=None) -> ScoreTable:
     """Score every window (default: the recording tiled with ``window_us`` windows) and object.

@@ -27,6 +27,7 @@ from evpose.core.data.objects import (
 )
 from evpose.core.data.trajectory import Trajectory, TrajectoryError
 from evpose.core.document.corrections import CORRECTIONS_FILENAME, Corrections
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 
 class Scene:
@@ -103,7 +104,7 @@ class Scene:
         trajectory, or inside a hole of it (the same test :meth:`T_base_cam` applies)."""
         return self.trajectory.reasons_at_event_time(np.atleast_1d(t_event_us), clock or self.clock)
 
-    def trajectory_holes(self, clock: ClockModel | None = None, window_us: int = 10_000) -> list[dict]:
+    def trajectory_holes(self, clock: ClockModel | None = None, window_us: int = DEFAULT_WINDOW_US) -> list[dict]:
         """The trajectory's holes and what they cost.
 
         Returns one dict per hole: ``t0_pose_us``/``t1_pose_us`` (the samples around the hole, pose

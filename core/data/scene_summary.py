@@ -2,11 +2,12 @@
 ``duration_s``, ``n_events``, ``t0_us``, ``t1_us``, ``n_poses``, ``objects`` and ``clock``), shared by the
 single-scene command and the dataset layer (:mod:`evpose.core.dataset`)."""
 from __future__ import annotations
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["HOLE_WINDOW_US", "scene_info"]
 
 #: ``info`` counts the windows without a label because of trajectory holes for this tiling (the export default).
-HOLE_WINDOW_US = 10_000
+HOLE_WINDOW_US = DEFAULT_WINDOW_US
 
 
 def scene_info(scene) -> dict:

@@ -10,12 +10,13 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 from evpose.core.data.json_values import plain
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["info_task", "sync_task", "refine_task", "score_task", "review_progress", "looked_at", "triage_task",
            "TRIAGE_WINDOW_US"]
 
 #: Window length of the triage scores and review progress (the export default).
-TRIAGE_WINDOW_US = 10_000
+TRIAGE_WINDOW_US = DEFAULT_WINDOW_US
 
 
 @contextmanager

@@ -21,6 +21,7 @@ from pathlib import Path
 from evpose.core.export.options import FORMATS, ExportError
 from evpose.core.export.runner import run_export
 from evpose.core.export.summary import ExportSummary
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["export_scene", "make_writer", "ExportSummary", "ExportError", "FORMATS"]
 
@@ -48,7 +49,7 @@ def make_writer(fmt: str, format_options: dict | None = None):
         raise ExportError(f"format_options: {exc}") from None
 
 
-def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = 10_000, window_events: int | None = None,
+def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = DEFAULT_WINDOW_US, window_events: int | None = None,
                  label_at: str = "center", only_verified: bool = False, objects=None, margin_m: float = 0.0,
                  jobs: int = 1, force: bool = False, progress=None, cancel=None, format_options: dict | None = None,
                  durable=True, include_stale: bool = False, executor=None) -> ExportSummary:

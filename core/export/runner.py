@@ -43,11 +43,12 @@ from evpose.core.export.worker import STAGES, WorkerSpec
 from evpose.core.export.writer import ExportContext, FormatWriter, WindowTask
 from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
+from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["run_export"]
 
 
-def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window_events=None, label_at="center",
+def run_export(scene, writer: FormatWriter, out_dir, *, window_us=DEFAULT_WINDOW_US, window_events=None, label_at="center",
                only_verified=False, objects=None, margin_m=0.0, jobs=1, force=False, durable=True,
                include_stale=False, progress: Callable[[float, str], None] | None = None,
                cancel: Callable[[], bool] | None = None, executor=None) -> ExportSummary:
@@ -60,7 +61,7 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=10_000, window
     names, sel = export_objects(scene, objects)
     check_margin(margin_m)
     jobs = check_jobs(jobs)
-    if window_events is not None and window_us is not None and window_us != 10_000:
+    if window_events is not None and window_us is not None and window_us != DEFAULT_WINDOW_US:
         raise ExportError("window: give either window_us or window_events, not both")
 
     windows = build_windows(scene.events, window_us=window_us, window_events=window_events, label_at=label_at)

@@ -20,7 +20,7 @@ import numpy as np
 
 from evpose.core.data.trajectory_holes import REASON_AFTER, REASON_BEFORE
 from evpose.core.export.options import ExportError
-from evpose.core.label.windows import Window, count_windows, time_windows
+from evpose.core.label.windows import DEFAULT_WINDOW_US, Window, count_windows, time_windows
 
 __all__ = ["UNLABELED_BEFORE", "UNLABELED_AFTER", "UNLABELED_OTHER", "REVIEW_PARTLY", "REVIEW_MIXED", "REVIEW_STALE",
            "REVIEW_NO_LABEL", "build_windows", "review_usage", "verified_mask", "scene_staleness",
@@ -31,7 +31,7 @@ UNLABELED_AFTER = REASON_AFTER       # holes: evpose.core.data.trajectory_holes.
 UNLABELED_OTHER = "label time outside the trajectory (no extrapolation)"
 
 
-def build_windows(store, *, window_us=10_000, window_events=None, label_at="center") -> list[Window]:
+def build_windows(store, *, window_us=DEFAULT_WINDOW_US, window_events=None, label_at="center") -> list[Window]:
     """The tiling of the recording: by time (``window_us``) or by count (``window_events``)."""
     if label_at not in ("center", "end"):
         raise ExportError(f"label_at: expected 'center' or 'end', got {label_at!r}")

@@ -11,6 +11,9 @@ import numpy as np
 
 from evpose.core.errors import InputError
 
+#: The default event window, µs: E-POSE's label window (10 ms), used wherever a window length is not given.
+DEFAULT_WINDOW_US = 10_000
+
 LABEL_AT = ("center", "end", "start")
 #: Shortest window the command line accepts (``--window-ms``), ms: poses are sampled every few ms, so
 #: shorter windows add no label information, while the work and the files grow with the window count

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evpose.core.document.review import grid_window
-from evpose.core.label.windows import Window, label_time
+from evpose.core.label.windows import DEFAULT_WINDOW_US, Window, label_time
 
 OVERLAY_KINDS = ("mask", "contour", "box", "axes", "center")
 REPRESENTATION_NAMES = ("polarity", "spike", "three_channel", "time_surface", "counts", "voxel")
@@ -90,7 +90,7 @@ class ViewState:
     """What the user looks at (not part of the document)."""
 
     t_us: int
-    window_us: int = 10_000
+    window_us: int = DEFAULT_WINDOW_US
     representation: str = "polarity"
     overlays: tuple = ("mask", "contour", "box", "center")
     hidden: frozenset = frozenset()
