@@ -19,6 +19,7 @@ from evpose.app.auto_panel import ProposalDock, ProposalPanel
 from evpose.app.auto_sync import apply_proposal, preview_corrections
 from evpose.app.score_row import document_key
 from evpose.app.workers import Job
+from evpose.core.signals import DOCUMENT
 
 __all__ = ["ProposalController"]
 
@@ -109,7 +110,7 @@ class ProposalController(QtCore.QObject):
             on_done(proposal)
         self.proposal, self.state = proposal, "proposal"
         self.panel.show_proposal(proposal, preview_after=proposal.usable)
-        self._connection = session.changed.connect(self._on_session)
+        self._connection = session.changed.connect(self._on_session, {DOCUMENT})
         if self._document_moved():
             return
         self.set_preview(proposal.usable)

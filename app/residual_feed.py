@@ -62,7 +62,7 @@ class ResidualFeed(QtCore.QObject):
         self.window.tabifyDockWidget(tab_with, self.dock)
         self.dock.hide()
         self.dock.visibilityChanged.connect(lambda on: on and QtCore.QTimer.singleShot(0, self.request))
-        self._connection = session.changed.connect(self._on_change)
+        self._connection = session.changed.connect(self._on_change, RESIDUAL_KINDS)
         return self.dock
 
     def detach(self) -> None:

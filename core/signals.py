@@ -17,7 +17,13 @@ import weakref
 from dataclasses import dataclass
 from typing import Any, Callable, Generic, TypeVar
 
-__all__ = ["Change", "Connection", "Signal"]
+__all__ = ["ALL_KINDS", "DOCUMENT", "HISTORY", "OBJECTS", "TIME", "VIEW", "Change", "Connection", "Signal"]
+
+#: The kinds of :class:`Change` (see its docstring). A subscriber names the kinds it shows
+#: (``Signal.connect(slot, kinds=...)``) and is not called for the others: a time step reaches only the views
+#: that depend on the time.
+DOCUMENT, HISTORY, TIME, VIEW, OBJECTS = "document", "history", "time", "view", "objects"
+ALL_KINDS = frozenset({DOCUMENT, HISTORY, TIME, VIEW, OBJECTS})
 
 T = TypeVar("T")
 
@@ -42,14 +48,19 @@ class Change:
     kind: str
     fields: frozenset = frozenset()
 
+    def __post_init__(self):
+        if self.kind not in ALL_KINDS:
+            raise ValueError(f"Change kind {self.kind!r} is not one of {sorted(ALL_KINDS)}")
+
 
 class Connection:
     """One subscription of a callable to a :class:`Signal`; :meth:`disconnect` ends it."""
 
-    __slots__ = ("_signal", "_ref", "_strong", "__weakref__")
+    __slots__ = ("_signal", "_ref", "_strong", "kinds", "__weakref__")
 
-    def __init__(self, signal: "Signal", slot: Callable):
+    def __init__(self, signal: "Signal", slot: Callable, kinds=None):
         self._signal = signal
+        self.kinds = None if kinds is None else frozenset(kinds)
         if inspect.ismethod(slot):
             self._ref, self._strong = weakref.WeakMethod(slot), None
         else:
@@ -85,11 +96,14 @@ class Signal(Generic[T]):
         self.payload_type = payload_type
         self._connections: list[Connection] = []
 
-    def connect(self, slot: Callable[[T], Any]) -> Connection:
-        """Subscribe ``slot(payload)``: a bound method weakly, anything else strongly."""
+    def connect(self, slot: Callable[[T], Any], kinds=None) -> Connection:
+        """Subscribe ``slot(payload)``: a bound method weakly, anything else strongly. ``kinds`` (payloads with a
+        ``kind``, as :class:`Change`): only those kinds reach ``slot`` (None: every payload)."""
         if not callable(slot):
             raise TypeError(f"cannot subscribe {slot!r}: not callable")
-        conn = Connection(self, slot)
+        if kinds is not None and not set(kinds) <= ALL_KINDS:
+            raise ValueError(f"unknown change kinds {sorted(set(kinds) - ALL_KINDS)}")
+        conn = Connection(self, slot, kinds)
         self._connections.append(conn)
         return conn
 
@@ -104,11 +118,12 @@ class Signal(Generic[T]):
         drop those that died. An exception of a subscriber propagates (the rest are not called)."""
         if not isinstance(payload, self.payload_type):
             raise TypeError(f"expected a {self.payload_type.__name__} payload, got {payload!r}")
+        kind = getattr(payload, "kind", None)
         for conn in list(self._connections):
             slot = conn.slot()
             if slot is None:
                 self._drop(conn)
-            else:
+            elif conn.kinds is None or kind in conn.kinds:
                 slot(payload)
 
     def __len__(self) -> int:

@@ -14,9 +14,10 @@ from PySide6 import QtCore
 from evpose.core.signals import Connection, Signal
 
 
-def connect_view(view: QtCore.QObject, signal: Signal, slot: Callable) -> Connection:
+def connect_view(view: QtCore.QObject, signal: Signal, slot: Callable, kinds=None) -> Connection:
     """Subscribe ``slot`` (normally a method of ``view``: held weakly) to ``signal`` until ``view``
-    is destroyed; returns the :class:`~evpose.core.signals.Connection` (to disconnect earlier)."""
-    conn = signal.connect(slot)
+    is destroyed, for the change ``kinds`` it shows (None: all); returns the
+    :class:`~evpose.core.signals.Connection` (to disconnect earlier)."""
+    conn = signal.connect(slot, kinds)
     view.destroyed.connect(conn.disconnect)
     return conn

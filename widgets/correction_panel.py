@@ -13,7 +13,7 @@ from PySide6 import QtCore, QtWidgets
 from evpose.core.errors import InputError
 from evpose.core.document.pose_edit import FRAMES, delta_components, pose_change
 from evpose.core.session.model import Session
-from evpose.core.signals import Change
+from evpose.core.signals import Change, DOCUMENT, OBJECTS, TIME
 from evpose.widgets.binding import connect_view
 from evpose.widgets.labels import Readout
 
@@ -114,7 +114,7 @@ class CorrectionPanel(QtWidgets.QWidget):
             self.tabs.setDocumentMode(True)
             lay.addWidget(self.tabs)
         lay.addStretch(1)
-        connect_view(self, session.changed, self._on_session)
+        connect_view(self, session.changed, self._on_session, {DOCUMENT, OBJECTS, TIME})
         self.refresh()
 
     # ------------------------------------------------------------------ construction

@@ -14,7 +14,7 @@ from PySide6 import QtCore, QtWidgets
 from evpose.core.label.windows import MIN_WINDOW_MS
 from evpose.core.session.model import Session
 from evpose.core.session.view_state import REPRESENTATION_NAMES
-from evpose.core.signals import Change
+from evpose.core.signals import Change, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.frame_legend import LEGENDS, legend_html, legend_text, swatch_icon
 
@@ -92,7 +92,7 @@ class FrameToolbar(QtWidgets.QWidget):
             lambda v: None if self._updating else self.session.set_view_option(contrast=float(v)))
         for spin in (self.win_spin, self.contrast_spin):
             spin.editingFinished.connect(self.done)
-        connect_view(self, session.changed, self._on_session)
+        connect_view(self, session.changed, self._on_session, {VIEW})
         self.refresh()
 
     def _display_menu(self) -> QtWidgets.QMenu:

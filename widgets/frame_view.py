@@ -33,7 +33,7 @@ from evpose.core.label.overlay import (
 )
 from evpose.core.session.frames import EventFrame, FrameData
 from evpose.core.session.model import Session
-from evpose.core.signals import Change
+from evpose.core.signals import Change, OBJECTS, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.frame_drag import DRAG_HELP, FrameViewBox, pixel_of
 from evpose.widgets.frame_toolbar import FrameToolbar
@@ -135,7 +135,7 @@ class FrameView(QtWidgets.QWidget):
         self._proxy = pg.SignalProxy(self.glw.scene().sigMouseMoved, rateLimit=30, slot=self._mouse_moved)
         self.glw.viewport().installEventFilter(self)
         self.toolbar.done.connect(lambda: self.glw.setFocus(QtCore.Qt.OtherFocusReason))
-        connect_view(self, session.changed, self._on_session)
+        connect_view(self, session.changed, self._on_session, {VIEW, OBJECTS})
 
     # ------------------------------------------------------------------ items
     def _sensor_frame(self, rect: QtCore.QRectF) -> None:

@@ -17,7 +17,7 @@ import shiboken6
 from PySide6 import QtCore, QtWidgets
 
 from evpose.core.session.kymograph_confidence import REASONS
-from evpose.core.signals import Change
+from evpose.core.signals import Change, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.kymograph_line import FramePreview
 from evpose.widgets.labels import Readout
@@ -89,7 +89,7 @@ class KymographView(QtWidgets.QWidget):
         self.span_spin.setValue(int(round(session.view.kymograph_span_us / 1000)))
         self.span_spin.valueChanged.connect(lambda ms: session.set_view_option(kymograph_span_us=int(ms) * 1000))
         self._lay_out()
-        self._subscription = connect_view(self, session.changed, self._on_session)
+        self._subscription = connect_view(self, session.changed, self._on_session, {VIEW})
 
     def _build_plot(self) -> None:
         p = self.plot

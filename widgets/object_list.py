@@ -5,7 +5,7 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.session.model import Session
-from evpose.core.signals import Change
+from evpose.core.signals import Change, DOCUMENT, OBJECTS
 from evpose.widgets.binding import connect_view
 
 COLUMNS = ("show", "", "object", "class", "corrected", "score")
@@ -45,7 +45,7 @@ class ObjectList(QtWidgets.QTableWidget):
             self.setItem(r, 5, QtWidgets.QTableWidgetItem("–"))
         self.itemChanged.connect(self._item_changed)
         self.itemSelectionChanged.connect(self._selection_changed)
-        connect_view(self, session.changed, self._on_session)
+        connect_view(self, session.changed, self._on_session, {OBJECTS, DOCUMENT})
         self.refresh()
 
     def fit_rows(self, max_rows: int = 6) -> None:

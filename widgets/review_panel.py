@@ -10,7 +10,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.document.corrections import REVIEW_STATUSES
 from evpose.core.session.model import Session
-from evpose.core.signals import Change
+from evpose.core.signals import Change, DOCUMENT
 from evpose.widgets.binding import connect_view
 
 STATUS_COLORS = {"verified": (40, 160, 60), "rejected": (200, 40, 40), "flagged": (230, 140, 0)}
@@ -74,7 +74,7 @@ class ReviewPanel(QtWidgets.QWidget):
         self.status = QtWidgets.QLabel()
         self.status.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Preferred)  # text-proof
         lay.addWidget(self.status)
-        connect_view(self, session.changed, self._on_session)
+        connect_view(self, session.changed, self._on_session, {DOCUMENT})
         self.refresh()
 
     def _range_toggled(self, on: bool) -> None:

@@ -34,7 +34,7 @@ import numpy as np
 import shiboken6
 from PySide6 import QtCore, QtWidgets
 
-from evpose.core.signals import Change
+from evpose.core.signals import Change, OBJECTS, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.spacetime_band import BandSplitter, band_palette, rest_palette
 from evpose.widgets.spacetime_cage import SpanCage, WindowSlab
@@ -159,7 +159,7 @@ class SpaceTimeView(QtWidgets.QWidget):
         self.canvas.events.mouse_release.connect(self._on_mouse_release)
         self.canvas.events.mouse_wheel.connect(self._on_mouse_wheel)
         self.canvas.events.resize.connect(self._on_canvas_resize)
-        self._subscription = connect_view(self, self.session.changed, self._on_session)
+        self._subscription = connect_view(self, self.session.changed, self._on_session, {VIEW, OBJECTS})
 
     # ====================================================================== public API
     @property

@@ -29,7 +29,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.session.model import Session
 from evpose.core.session.timeline import TimelineData, timeline_data
-from evpose.core.signals import Change
+from evpose.core.signals import Change, DOCUMENT, OBJECTS, TIME, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.timeline_controls import ControlBar
 from evpose.widgets.timeline_marks import MarkRegion, mark_regions, stale_key
@@ -81,7 +81,7 @@ class Timeline(QtWidgets.QWidget):
         self._data_timer = QtCore.QTimer(self, singleShot=True, interval=15)
         self._data_timer.timeout.connect(self._refresh_if_clock_changed)
 
-        connect_view(self, session.changed, self._on_session)
+        connect_view(self, session.changed, self._on_session, {TIME, VIEW, DOCUMENT, OBJECTS})
         self.refresh_data()
         self.fit()
         self._rebuild_marks()

@@ -127,3 +127,19 @@ def test_change_is_a_frozen_value():
     assert a == Change("document", frozenset({"clock"})) and hash(a) == hash(Change("document", frozenset({"clock"})))
     with pytest.raises(AttributeError):
         a.kind = "view"
+
+
+def test_a_subscriber_gets_only_the_kinds_it_names():
+    from evpose.core.signals import DOCUMENT, TIME, Change, Signal
+
+    sig = Signal(Change)
+    got, every = [], []
+    sig.connect(got.append, kinds={TIME})
+    sig.connect(every.append)
+    sig.emit(Change(DOCUMENT, frozenset({"clock"})))
+    sig.emit(Change(TIME, frozenset({"t_us"})))
+    assert [c.kind for c in got] == [TIME] and [c.kind for c in every] == [DOCUMENT, TIME]
+    with pytest.raises(ValueError, match="unknown change kinds"):
+        sig.connect(got.append, kinds={"tiem"})
+    with pytest.raises(ValueError, match="not one of"):
+        Change("tiem")
