@@ -322,7 +322,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if len(self._docks) < 4:
             return
         d = self._docks
-        d[2].raise_()                        # the space-time view in front of its tabs (review marks, kymograph)
+        if d[2] in self.tabifiedDockWidgets(d[1]) and not d[1].visibleRegion().isEmpty():
+            d[2].raise_()                    # the space-time view in front of the review tab (not of one asked for)
         L.default_dock_sizes(self, spacetime=d[2], review=d[1], corrections=d[0], timeline=d[3])
 
     def ensure_timeline_height(self, px: int) -> None:

@@ -14,7 +14,6 @@ from evpose.app.cli.errors import CliError, command
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.progress import Progress
 from evpose.core.errors import InputError
-from evpose.core.label.windows import DEFAULT_WINDOW_US     # when neither --window-ms nor --window-events is given
 
 __all__ = ["add_export_parser", "cmd_export", "summary_text", "format_options_from_args"]
 
@@ -80,7 +79,7 @@ def summary_text(s) -> str:
 
 def window_us_from_args(args) -> int:
     """The window length in µs, after refusing nonsensical window, margin, jobs and object options."""
-    from evpose.core.label.windows import MIN_WINDOW_MS
+    from evpose.core.label.windows import DEFAULT_WINDOW_US, MIN_WINDOW_MS   # (imported late: --help loads no engine)
 
     window_us = DEFAULT_WINDOW_US
     if args.window_ms is not None:

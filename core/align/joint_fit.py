@@ -91,13 +91,6 @@ class _Fit:
         self.contours = None             # the last contours (their z-buffers serve the next look)
         self.clusters = None             # a group id per window for the standard errors (None: each window)
         self._looked = None              # (state, contours) of the last look
-        self._drawn = None               # (state, contours) of the last computed contours
-        lo = np.array([me.V.min(0) for me in self.setup.edges])
-        hi = np.array([me.V.max(0) for me in self.setup.edges])
-        corners = np.array([[[(hi if (c >> a) & 1 else lo)[i, a] for a in range(3)] for c in range(8)]
-                            for i in range(len(names))])
-        self._corners = np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2)   # (K, 8, 4)
-        self._t_label = np.array([w.t_label for w in self.setup.wins], np.int64)
 
     def centres(self, state: JointState) -> np.ndarray:
         return np.array([T[:3, :3] @ me.centre + T[:3, 3] for T, me in zip(state.T_bo, self.setup.edges)])
@@ -113,36 +106,13 @@ class _Fit:
                 set_window_clock(self.view, w, clock)
             self._clock_key = key
 
-    def _box_px(self, state: JointState) -> np.ndarray:
-        """The objects' bounding-box corners in every window at its label time, pinhole pixels ``(W, K, 8, 2)``."""
-        T_bc, _ = self.scene.T_base_cam(self._t_label, state.clock())
-        T_cb = inv_T(T_bc @ state.H)
-        T_co = np.einsum("wij,kjl->wkil", T_cb, np.array(state.T_bo))
-        P = np.einsum("wkij,knj->wkni", T_co[..., :3, :], self._corners)
-        z = np.maximum(P[..., 2], 1e-6)
-        return np.stack([self.K[0, 0] * P[..., 0] / z, self.K[1, 1] * P[..., 1] / z], axis=-1)
-
-    def moved_px(self, a: JointState, b: JointState) -> float:
-        """The largest image move of an object's bounding-box corner between states ``a`` and ``b`` over the windows
-        (px, at the label times): how far contours computed at ``a`` are from ``b``'s."""
-        d = np.linalg.norm(self._box_px(a) - self._box_px(b), axis=-1)
-        return float(np.nanmax(d)) if d.size and np.isfinite(d).any() else math.inf
-
     def look(self, state: JointState, previous=None):
         """The visible contour samples of every window at ``state`` (``previous`` contours lend their
-        z-buffers); the last state's are kept (they do not depend on the kernel width), and so are the last
-        computed ones while no object's box moved more than ``reuse_contours_px`` from where they were computed
-        (samples are points on the meshes: near a state, its contour generators and visibility are the same
-        but for the samples at the ends of a contour, while computing them is most of a fit's time)."""
+        z-buffers); the last state's are kept (they do not depend on the kernel width)."""
         if self._looked is not None and self._looked[0] is state:
             return self._looked[1]
         self.poses(state)
-        if (previous is not None and self._drawn is not None and self._drawn[1] is previous
-                and self.moved_px(self._drawn[0], state) <= self.p.reuse_contours_px):
-            contours = previous
-        else:
-            contours = self.setup.contours(state.T_bo, state.clock(), previous=previous)
-            self._drawn = (state, contours)
+        contours = self.setup.contours(state.T_bo, state.clock(), previous=previous)
         self._looked = (state, contours)
         return contours
 

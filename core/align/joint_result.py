@@ -40,7 +40,6 @@ class JointParams:
     spacing_px: float = 0.5
     n_sub: int = 3
     converged_move: float = 0.1
-    reuse_contours_px: float = 0.5         # contours are recomputed only when an object's box moved more (px)
     step_bounds: bool = True
     prior_obj_mm: float = 5.0
     prior_obj_deg: float = 3.0

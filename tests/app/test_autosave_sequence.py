@@ -77,8 +77,8 @@ def test_a_clean_quit_removes_a_journal_and_a_crash_keeps_it(qtbot, window, scen
     s = window.controller.open_scene(scene_copy)
     s.set_offset_correction_us(3_000, mergeable=False)
     _tick(window)
-    s.set_offset_correction_us(0, mergeable=False)        # back to the saved value, not by undo
-    assert window.isWindowModified() and not s.unsaved
+    s.set_offset_correction_us(0, mergeable=False)        # back to the saved value, not by undo: nothing to save
+    assert not window.isWindowModified() and not s.unsaved and not s.dirty
     _tick(window)
     assert not s.journal_path.exists()
     s.set_offset_correction_us(4_000, mergeable=False)
