@@ -4,8 +4,9 @@ PLY as ``bop_toolkit_lib.inout.load_ply`` reads it: ``format binary_little_endia
 element with ``float`` x, y, z (mm) and ``float`` nx, ny, nz (unit vertex normals), one ``face`` element
 with ``property list uchar int vertex_indices`` (triangles). The toolkit's renderers shade with the
 normals (its default Phong rendering fails without them). Normals are the angle-weighted sum of the unit
-normals of the faces around a vertex (as BOP computed its models' normals with MeshLab), zero for a vertex
-no face uses.
+normals of the faces around a vertex (as BOP computed its models' normals with MeshLab); a vertex where that sum
+vanishes (only degenerate faces, opposite faces of a thin fin) or that no face uses takes its neighbours' or the
+nearest vertex's normal: never zero (two published YCB models each had one such vertex).
 
 Model origin: the origin of the scene's mesh, unchanged (not moved to the centre of the 3D bounding box,
 which BOP's own datasets use): the poses in ``scene_gt.json`` refer to it; ``min_x/y/z`` and
@@ -20,7 +21,7 @@ __all__ = ["vertex_normals", "ply_bytes", "models_info_entry"]
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit vertex normals ``(V, 3)``: for every face corner, the face's unit normal times the corner's
-    angle (radians), summed per vertex and normalised (zero where the sum is zero)."""
+    angle (radians), summed per vertex and normalised; where the sum vanishes, :func:`_fill_zero_normals`."""
     V = np.asarray(vertices, np.float64)
     F = np.asarray(faces, np.int64)
     out = np.zeros_like(V)
@@ -39,9 +40,45 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         ang = np.arccos(np.clip(cosang, -1.0, 1.0))
         np.add.at(out, F[:, c], n * ang[:, None])
     ln = np.linalg.norm(out, axis=1)
-    ok = ln > 0
+    ok = ln > 1e-12
     out[ok] /= ln[ok, None]
+    if not ok.all():
+        _fill_zero_normals(V, F, out, ok)
     return out
+
+
+def _fill_zero_normals(V: np.ndarray, F: np.ndarray, out: np.ndarray, ok: np.ndarray) -> None:
+    """Give every vertex whose angle-weighted normal vanished one (in place): the mean of its face-neighbours'
+    normals (repeated while that reaches more of them), else the normal of the nearest vertex that has one, else the
+    direction from the model's centre (a renderer shades by these; a zero normal renders black or NaN)."""
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    for _ in range(8):
+        missing = ~ok
+        if not missing.any():
+            return
+        use = missing[edges[:, 0]] & ok[edges[:, 1]]
+        if not use.any():
+            break
+        acc = np.zeros_like(out)
+        np.add.at(acc, edges[use, 0], out[edges[use, 1]])
+        ln = np.linalg.norm(acc, axis=1)
+        got = missing & (ln > 1e-12)
+        out[got] = acc[got] / ln[got, None]
+        ok = ok | got
+    missing = ~ok
+    if missing.any() and ok.any():
+        from scipy.spatial import cKDTree
+
+        _, j = cKDTree(V[ok]).query(V[missing])
+        out[missing] = out[ok][j]
+        return
+    if missing.any():
+        d = V[missing] - V.mean(axis=0)
+        ln = np.linalg.norm(d, axis=1)
+        d[ln <= 1e-12] = (0.0, 0.0, 1.0)
+        ln[ln <= 1e-12] = 1.0
+        out[missing] = d / ln[:, None]
 
 
 def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, comment: str = "") -> bytes:

@@ -1,7 +1,7 @@
 """Prophesee / Metavision recordings: EVT 2.0 and EVT 3.0 ``.raw`` and ``.dat`` (``evpose import prophesee
 REC.raw|REC.dat [TRAJECTORY [CALIB]]``).
 
-The headers and EVT 3.0 are read with ``faery`` (PyPI, Rust decoders for EVT 2.0 / 3.0 and DAT 1 / 2 with Python
+The headers are read with ``faery`` (PyPI, Rust decoders for EVT 2.0 / 3.0 and DAT 1 / 2 with Python
 bindings; the tests also write their files with its encoders). Metavision's own SDK is not on PyPI. Candidates measured
 here (2 cores, 20 M random events at 1 ev/µs; decode only; and files written by faery crossing each time wrap):
 
@@ -25,26 +25,27 @@ evt3 0.4.1    EVT3 only            -- / 82 / --, 108 MB            exact on EVT3
 evlib 0.13.2  many                 not installed                   pulls polars, pyarrow and pandera (~100 MB)
 ============  ===================  ==============================  ===========================================
 
-faery reads the headers and EVT 3.0. EVT 2.0 and DAT words are decoded here with NumPy
-(:mod:`evpose.core.importers.prophesee_words`), because faery clamps every time that steps back to the previous
-one, and skips unknown EVT 2.0 words without a count: their times go to the event sink as the file holds them
-(out of order within the reorder window: put in place, counted; further: refused, ``--repair`` drops them).
+faery reads the headers. The event words of all three are decoded here, EVT 2.0 and DAT with NumPy
+(:mod:`evpose.core.importers.prophesee_words`), EVT 3.0 with numba (:mod:`evpose.core.importers.evt3_words`),
+because faery clamps every time that steps back to the previous one (on a real Gen4.1 EVT 3.0 recording 0.66 % of
+the events came out 1-11 µs late against OpenEB's reading), and skips unknown words without a count: their times go
+to the event sink as the file holds them (out of order within the reorder window: put in place, counted; further:
+refused, ``--repair`` drops them).
 Decoding is a small part of an import (validation and the HDF5 writing dominate: ``bench/bench_import.py``).
 
 Header (:mod:`evpose.core.importers.prophesee_header`): the sensor size comes from ``% geometry WxH`` /
-``% format ...;width=W;height=H`` (EVT) or ``% Width`` / ``% Height`` (DAT); a header without it needs
-``--width/--height``. An empty file, one without a ``%`` header, or a header naming no version is refused as not
+``% format ...;width=W;height=H`` (EVT) or ``% Width`` / ``% Height`` (DAT); a header without it gets the size of
+the sensor it names (``% plugin_name hal_plugin_gen31_fx3`` -> 640 x 480, an assumption in the report:
+:mod:`evpose.core.importers.prophesee_sensors`), else needs ``--width/--height``. An empty file, one without a ``%`` header, or a header naming no version is refused as not
 a Prophesee recording. The version comes from the header too (``% evt 2.0|3.0``, DAT ``% Version``); EVT 2.1 is
 refused (faery cannot decode it). External trigger events are counted and ignored; unknown EVT 2.0 words are
-counted (``evt2_words_unknown``) and warned about.
+counted (``evt2_words_unknown``, ``evt3_words_unknown``) and warned about; EVT 3.0 TIME_LOW words that step back
+within their TIME_HIGH are counted (``evt3_time_low_back``) and said in the report.
 
 Time: µs of the sensor clock (since the camera started), int64, plus the header's ``t0`` when a writer stored one;
 a trajectory in another clock needs the clock prior ``--offset-us``. The Metavision time counters wrap: EVT 3.0
 carries 24 bits (a wrap every 16.8 s), EVT 2.0 34 bits (every 4.77 h), DAT 32 bits (every 71.6 min); all three are
-unwrapped, and the tests pin each wrap. EVT 3.0 (faery; its time decoding is issue 26): faery counts a wrap only
-when TIME_HIGH (4096 µs steps) falls from its last two values to its first ones, so a stream with no TIME_HIGH
-word in the 8 ms before a wrap (events that sparse; sensors emit TIME_HIGH as time passes) keeps the old time,
-clamped, and faery clamps any other backward step to the previous time.
+unwrapped, and the tests pin each wrap (EVT 3.0: a TIME_HIGH that falls by more than half its range).
 
 A file whose last word is cut off (a recording stopped mid-write) loses that partial word: a warning, not an
 error.
@@ -60,14 +61,13 @@ from evpose.core.importers.failure import ImportFailure, wrap_errors
 from evpose.core.importers.object_args import collect_objects
 from evpose.core.importers.pose_text import read_pose_text
 from evpose.core.importers.prophesee_header import open_decoder, warn_partial_word
+from evpose.core.importers.evt3_words import Evt3Words
 from evpose.core.importers.prophesee_words import DatWords, Evt2Words
 from evpose.core.importers.recording import build_recording_scene, recording_camera, recording_sources
 from evpose.core.importers.report import ImportContext
 
 SUFFIXES = (".raw", ".dat")
-#: Bytes faery reads per packet (one packet per read): progress is estimated from it.
-READ_BYTES = 1 << 16
-#: Event packets (EVT 3.0) or words (EVT 2.0, DAT) are gathered into chunks of about this many before validation.
+#: Words are decoded in chunks of this many before validation.
 CHUNK_EVENTS = 1 << 20
 
 
@@ -85,15 +85,17 @@ def import_prophesee(sources, out, ctx: ImportContext) -> dict:
     camera = recording_camera(ctx, calib, head.size, rec)
     ctx.report.details["prophesee"] = {"version": head.version, "sensor": list(head.size), "header_bytes": head.length}
     with decoder:
-        chunks = _faery_chunks(ctx, decoder, rec) if head.version == "evt3" else _word_chunks(ctx, rec, head)
-        return build_recording_scene(ctx, out, rec, camera, chunks, lambda: traj, objects)
+        return build_recording_scene(ctx, out, rec, camera, _word_chunks(ctx, rec, head), lambda: traj, objects)
 
 
 def _word_chunks(ctx: ImportContext, rec: Path, head):
-    """``(x, y, t, p, record, fraction)`` chunks of EVT 2.0 / DAT words decoded by NumPy, times unchanged."""
+    """``(x, y, t, p, record, fraction)`` chunks of EVT 2.0 / EVT 3.0 / DAT words decoded here, times unchanged."""
     evt2 = head.version == "evt2"
-    words = Evt2Words(head.t0_us) if evt2 else DatWords(head.version, head.t0_us)
-    dtype = np.dtype("<u4" if evt2 else "<u8")
+    if head.version == "evt3":
+        words, dtype = Evt3Words(head.t0_us), np.dtype("<u2")
+    else:
+        words = Evt2Words(head.t0_us) if evt2 else DatWords(head.version, head.t0_us)
+        dtype = np.dtype("<u4" if evt2 else "<u8")
     size = max(os.path.getsize(rec), 1)
     n = 0
     with open(rec, "rb") as f:
@@ -108,6 +110,8 @@ def _word_chunks(ctx: ImportContext, rec: Path, head):
             n += len(t)
     if evt2:
         _report_evt2_words(ctx, rec, words)
+    elif head.version == "evt3":
+        _report_evt3_words(ctx, rec, words)
 
 
 def _report_evt2_words(ctx: ImportContext, rec: Path, words: Evt2Words) -> None:
@@ -122,39 +126,21 @@ def _report_evt2_words(ctx: ImportContext, rec: Path, words: Evt2Words) -> None:
                  f"{words.first_unknown:,} after the header); the file may be damaged or of another version")
 
 
-def _columns(a: np.ndarray) -> tuple:
-    """``(x, y, t int64, p)`` of one faery EVT event array."""
-    return a["x"], a["y"], a["t"].astype(np.int64), a["on"]
-
-
-def _faery_chunks(ctx: ImportContext, decoder, rec: Path):
-    """``(x, y, t, p, record, fraction)`` chunks of about :data:`CHUNK_EVENTS` events decoded by faery (EVT 3.0);
-    faery's refusals of corrupt words become an ImportFailure naming the event index."""
-    size = max(os.path.getsize(rec), 1)
-    held, n_held, n, n_packets, n_triggers, end = [], 0, 0, 0, 0, False
-    it = iter(decoder)
-    while not end:
-        with wrap_errors(rec, f"events after {n + n_held:,}", "-", "corrupt data"):
-            try:
-                pk = next(it)
-            except StopIteration:
-                pk, end = None, True
-            except BaseException as exc:  # noqa: BLE001 - a Rust panic is a BaseException
-                if isinstance(exc, (KeyboardInterrupt, SystemExit)):
-                    raise
-                raise RuntimeError(str(exc)) from None
-        if pk is not None:
-            n_packets += 1
-            if isinstance(pk, dict):
-                n_triggers += len(pk.get("triggers", ()))
-                pk = pk.get("events")
-            if pk is not None and len(pk):
-                held.append(pk)
-                n_held += len(pk)
-        if held and (end or n_held >= CHUNK_EVENTS):
-            a = held[0] if len(held) == 1 else np.concatenate(held)
-            yield (*_columns(a), f"events [{n}, {n + len(a)})", min(n_packets * READ_BYTES / size, 1.0))
-            n += len(a)
-            held, n_held = [], 0
-    if n_triggers:
-        ctx.report.assume(f"{rec.name}: {n_triggers} external trigger event(s) ignored")
+def _report_evt3_words(ctx: ImportContext, rec: Path, words: Evt3Words) -> None:
+    rep = ctx.report
+    if words.n_triggers:
+        rep.assume(f"{rec.name}: {words.n_triggers} external trigger event(s) ignored")
+    if words.n_skipped:
+        rep.counts["evt3_words_skipped"] = words.n_skipped
+    if words.n_time_low_back:
+        rep.counts["evt3_time_low_back"] = words.n_time_low_back
+        rep.assume(f"{rec.name}: {words.n_time_low_back} TIME_LOW word(s) step back within their TIME_HIGH; their "
+                   "events keep the times as written (as OpenEB reads them) and are put in order")
+    if words.n_no_time:
+        rep.counts["evt3_events_before_time"] = words.n_no_time
+        rep.warn(f"{rec.name}: {words.n_no_time} event(s) before the stream's first TIME_HIGH and TIME_LOW have no "
+                 "time: left out")
+    if words.n_unknown:
+        rep.counts["evt3_words_unknown"] = words.n_unknown
+        rep.warn(f"{rec.name}: {words.n_unknown} EVT 3.0 word(s) of unknown type skipped (first: word "
+                 f"{words.first_unknown:,} after the header); the file may be damaged or of another version")

@@ -3,7 +3,8 @@ with a file that has none.
 
 faery reads the header (format version, sensor size, DAT event type); this module says what the library cannot:
 a file that is empty, has no ``%`` header at all (random bytes, another format), names no format version, or
-lacks only the sensor size (the one case ``--width/--height`` fixes). It also reads the header's ``t0`` (µs
+lacks only the sensor size (then the sensor the header names gives it, :mod:`evpose.core.importers.prophesee_sensors`,
+or ``--width/--height``). It also reads the header's ``t0`` (µs
 added to every time, as faery does) and the header's length in bytes, and warns about a last word cut off.
 """
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from evpose.core.importers.failure import ImportFailure
+from evpose.core.importers.prophesee_sensors import size_from_header
 from evpose.core.importers.report import ImportContext
 
 #: Bytes per event word of each version; DAT has 2 more header bytes (event type and size) before them.
@@ -53,6 +55,19 @@ def read_text_header(rec: Path) -> tuple[int, int]:
     return n, t0
 
 
+def header_lines(rec: Path) -> list[str]:
+    """The ``%`` lines at the start of ``rec`` (decoded as Latin-1, without line ends)."""
+    out, n = [], 0
+    with open(rec, "rb") as f:
+        while n < _MAX_HEADER_BYTES:
+            line = f.readline(_MAX_HEADER_BYTES)
+            if not line.startswith(b"%"):
+                break
+            n += len(line)
+            out.append(line.decode("latin-1").rstrip("\r\n"))
+    return out
+
+
 def open_decoder(rec: Path, ctx: ImportContext):
     """``(faery decoder, Header)``; the size from the header, else ``--width/--height``."""
     length, t0 = read_text_header(rec)
@@ -64,9 +79,16 @@ def open_decoder(rec: Path, ctx: ImportContext):
     except _MissingSize:
         if not _has_version(rec, is_dat):
             raise _no_version(rec) from None
-        raise ImportFailure(rec, "(header)", "geometry", "the header gives no sensor size ('% geometry WxH', "
-                            "'% format ...;width=W;height=H' or '% Width' and '% Height'): pass --width and "
-                            "--height") from None
+        named = size_from_header(header_lines(rec))
+        if named is None:
+            raise ImportFailure(rec, "(header)", "geometry", "the header gives no sensor size ('% geometry WxH', "
+                                "'% format ...;width=W;height=H' or '% Width' and '% Height') and names no sensor "
+                                "whose size is known (plugin_name, sensor_name, sensor_generation): pass --width and "
+                                "--height") from None
+        (w, h), line = named
+        ctx.report.assume(f"{rec.name}: sensor {w}x{h} px from the header's '{line}' (it has no geometry line; "
+                          "--width/--height override)")
+        d = _faery_decoder(rec, is_dat, (w, h))
     except _MissingVersion:
         raise _no_version(rec) from None
     version, size = d.version, d.dimensions

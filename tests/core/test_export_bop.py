@@ -434,3 +434,24 @@ def test_model_ply_header_survives_any_object_name():
                      comment="evpose object tasse_café\x07 (mm)")
     head = data.split(b"end_header\n")[0].decode("ascii")
     assert "comment evpose object tasse_caf\\xe9 (mm)" in head and "\x07" not in head
+
+
+def test_model_normals_are_never_zero(models_dir):
+    """Issue 26.6: a vertex whose faces' normals cancel (a fin: one triangle both ways round), one used only by
+    degenerate faces, and one no face uses all get a unit normal from their neighbours; on the published YCB
+    meshes (two had one zero-normal vertex each) every vertex normal is a unit vector."""
+    from evpose.core.data.objects import ObjectModel
+    from evpose.core.export.bop_models import vertex_normals
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 2, 0], [0.5, 0.5, 0.0], [5, 5, 5]], float)
+    F = np.array([[0, 1, 2], [1, 3, 2],             # a flat square: normals +z
+                  [1, 3, 4], [1, 4, 3],             # a fin: vertex 4's two faces cancel
+                  [5, 5, 0]])                       # vertex 5: only a degenerate face; vertex 6: no face
+    n = vertex_normals(V, F)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(n[[0, 2]], [[0, 0, 1], [0, 0, 1]], atol=1e-12)
+    for p in sorted(models_dir.iterdir()):
+        if p.suffix in (".obj", ".stl", ".ply"):
+            m = ObjectModel.from_file(p)
+            ln = np.linalg.norm(vertex_normals(m.vertices_m, m.faces), axis=1)
+            assert np.all(np.abs(ln - 1.0) < 1e-9), (p.name, int(np.count_nonzero(np.abs(ln - 1.0) >= 1e-9)))

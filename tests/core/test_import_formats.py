@@ -292,6 +292,16 @@ def test_prophesee_sensor_size_from_the_header(src, tmp_path):
         import_scene("prophesee", [nohdr, csv, src.cam_json], tmp_path / "s", log=None)
     import_scene("prophesee", [nohdr, csv, src.cam_json], tmp_path / "s", width=173, height=130, log=None)
     assert_events_equal(read_scene(tmp_path / "s")[0], ev0)
+    # ... unless it names the sensor (2017-2020 Metavision headers): Gen3.1 -> 640 x 480, said in the report
+    named = tmp_path / "gen31.raw"
+    named.write_bytes(b"\n".join(keep) + b"\n% plugin_name hal_plugin_gen31_fx3\n"
+                      + data[sum(len(ln) + 1 for ln in lines[:3]):])
+    vga = tmp_path / "cam640.json"
+    vga.write_text(json.dumps({**src.cam.to_dict(), "width": 640, "height": 480}))
+    res = import_scene("prophesee", [named, csv, vga], tmp_path / "s5", log=None)
+    assert any("sensor 640x480 px from the header's '% plugin_name hal_plugin_gen31_fx3'" in a
+               for a in res["assumptions"]), res["assumptions"]
+    assert_events_equal(read_scene(tmp_path / "s5")[0], ev0)
     # a cut-off last word is a warning; a trajectory is required
     cut = tmp_path / "cut.raw"
     cut.write_bytes(data[:-1])
@@ -300,6 +310,41 @@ def test_prophesee_sensor_size_from_the_header(src, tmp_path):
     with pytest.raises(ImportFailure, match=r"rec.raw: \(arguments\): TRAJECTORY: a Prophesee recording holds no "
                                             "poses"):
         import_scene("prophesee", [rec], tmp_path / "s4", camera=str(src.cam_json), log=None)
+
+
+def test_evt3_time_low_stepping_back_is_kept_as_written_and_counted(src, tmp_path):
+    """Issue 26.1: a TIME_LOW 3 µs below the one before it, within the same TIME_HIGH (as on a real Gen4.1
+    recording), gives its event that time (OpenEB's reading; faery clamped it): the event is put in order and the
+    report counts the backward step."""
+    from evpose.core.importers.prophesee_header import read_text_header
+
+    ev0, traj0 = shifted(src, SENSOR_T0_US)
+    rec = write_prophesee(tmp_path / "rec.raw", ev0, version="evt3", size=size_of(src))
+    n_head = read_text_header(rec)[0]
+    data = rec.read_bytes()
+    words = np.frombuffer(data[n_head:], "<u2").copy()
+    kind = words >> 12
+    # a TIME_LOW whose next word is an ADDR_X, late enough that the low bits can step back 3 µs
+    i = next(int(k) for k in np.flatnonzero(kind == 0x6)[len(words) // 4:]
+             if kind[k + 1] == 0x2 and (words[k] & 0xFFF) >= 3)
+    low = int(words[i] & 0xFFF)
+    extra = np.array([0x6000 | (low - 3), words[i + 1], 0x6000 | low], "<u2")    # back 3 us: one more event
+    bad = tmp_path / "back.raw"
+    bad.write_bytes(data[:n_head] + np.concatenate([words[:i + 2], extra, words[i + 2:]]).tobytes())
+    csv = traj0.save_csv(tmp_path / "trajectory.csv")
+    res = import_scene("prophesee", [bad, csv, src.cam_json], tmp_path / "s", log=None)
+    report = json.loads((tmp_path / "s" / "import_report.json").read_text())
+    assert report["counts"]["evt3_time_low_back"] == 1, report["counts"]
+    assert any("TIME_LOW word(s) step back" in a for a in report["assumptions"])
+    # the added event: the one after the TIME_LOW repeated 3 us earlier, as written
+    from evpose.core.importers.evt3_words import Evt3Words
+
+    x, y, t, p = Evt3Words().decode(words[:i + 2])
+    got = read_scene(tmp_path / "s")[0]
+    assert len(got.t) == len(ev0.t) + 1 and np.all(np.diff(got.t) >= 0)
+    at = (got.t == t[-1] - 3) & (got.x == x[-1]) & (got.y == y[-1]) & (got.p == p[-1])
+    assert at.sum() == 1 + int(np.count_nonzero((ev0.t == t[-1] - 3) & (ev0.x == x[-1]) & (ev0.y == y[-1])
+                                                 & (ev0.p == p[-1])))
 
 
 def test_cli_new_formats_json_and_one_error_line(src, tmp_path, capsys):
@@ -320,6 +365,8 @@ def test_cli_new_formats_json_and_one_error_line(src, tmp_path, capsys):
                                  str(tmp_path / "s2"), "-q"])
     assert args.func(args) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
-    assert len(err) == 1 and "bad.raw: events after" in err[0] and "Traceback" not in err[0], err
+    # random bytes after the header decode to words (EVT 3.0 has no check sum): the first event off the sensor is
+    # refused in one line naming the file, the event and the field
+    assert len(err) == 1 and "bad.raw: event" in err[0] and "outside the" in err[0] and "Traceback" not in err[0], err
     assert not (tmp_path / "s2").exists()
     shutil.rmtree(tmp_path / "scene")
