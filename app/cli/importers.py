@@ -18,7 +18,8 @@ __all__ = ["add_import_parser", "cmd_import", "FORMAT_NAMES"]
 
 #: The formats of :data:`evpose.core.importers.FORMATS`, in its order, named here so that building the
 #: parser does not load the readers (a test keeps the two equal).
-FORMAT_NAMES = ("epose-bag", "epose-export", "dsec", "rpg", "ycbev", "npz", "bop", "aedat4", "prophesee")
+FORMAT_NAMES = ("epose-bag", "epose-export", "dsec", "rpg", "ycbev", "npz", "bop", "aedat4", "prophesee",
+                "ros-events")
 
 _EPILOG = """formats and their sources:
   epose-bag     REC.bag | ROS2_BAG_DIR | REC.mcap | REC.db3  [--assets DIR --scene S --sequence Q | --camera --objects]
@@ -31,6 +32,8 @@ _EPILOG = """formats and their sources:
                 event frames read back as events; timing from scene_times.json when present
   aedat4        REC.aedat4 [TRAJECTORY [CALIB]]  (sensor size from the file; its pose stream without TRAJECTORY)
   prophesee     REC.raw|REC.dat [TRAJECTORY [CALIB]]  (EVT 2.0 / EVT 3.0 / DAT; sensor size from the header)
+  ros-events    REC.bag | ROS2_BAG_DIR  TRAJECTORY [CALIB] [--events-topic T]  (event_camera_msgs/EventPacket of
+                the ROS drivers, encodings evt3 and mono; clock prior from the first packet's stamp)
 --objects takes name=mesh[:T_base_obj.json],... (T is a 4x4 JSON list, metres).
 Every import writes import_report.json into the scene: what was assumed, repaired, dropped."""
 

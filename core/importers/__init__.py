@@ -3,7 +3,7 @@
 Formats (one module each): ``epose-bag`` (E-POSE ROS1 bags), ``epose-export`` (E-POSE ``NNNN_data.mat``
 windows), ``dsec`` (DSEC event HDF5 + trajectory + calibration), ``rpg`` (Event Camera Dataset text files),
 ``ycbev`` (YCB-Ev zstd events + BOP annotations), ``npz`` (NumPy arrays), ``bop`` (a BOP scene of event
-frames, e.g. evpose's BOP export), ``aedat4`` (iniVation DV recordings), ``prophesee`` (Metavision EVT 2.0 /
+frames, e.g. evpose's BOP export), ``aedat4`` (iniVation DV recordings), ``ros-events`` (ROS bags of ``event_camera_msgs/EventPacket``), ``prophesee`` (Metavision EVT 2.0 /
 EVT 3.0 ``.raw`` and ``.dat``). ``epose-bag`` also reads ROS2 bags (sqlite3 or MCAP).
 
 Every importer builds the scene atomically (nothing at ``out`` unless it succeeded), streams the events with
@@ -46,6 +46,7 @@ FORMATS = {
     "bop": ("bop", "import_bop"),
     "aedat4": ("aedat4", "import_aedat4"),
     "prophesee": ("prophesee", "import_prophesee"),
+    "ros-events": ("ros_events", "import_ros_events"),
 }
 
 

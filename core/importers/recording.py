@@ -75,10 +75,12 @@ def recording_camera(ctx: ImportContext, calib: Path | None, size: tuple[int, in
 
 
 def build_recording_scene(ctx: ImportContext, out, rec: Path, camera: CameraModel, chunks: Iterable[Chunk],
-                          trajectory: Callable[[], object], objects: dict | None = None) -> dict:
+                          trajectory: Callable[[], object], objects: dict | None = None,
+                          clock_offset_us: Callable[[], int] | None = None) -> dict:
     """Stream ``chunks`` into the scene's events, add ``trajectory()`` (a ``T_base_cam``
     :class:`~evpose.core.data.trajectory.Trajectory`, called once the events are in) and the ``--objects``,
-    commit; returns the import summary."""
+    commit with the clock prior ``clock_offset_us()`` (called then; default 0, ``--offset-us`` overrides);
+    returns the import summary."""
     objects = collect_objects(ctx, None) if objects is None else objects
     with SceneBuilder(out, ctx) as sb:
         sink = sb.event_sink(camera.width, camera.height)
@@ -91,6 +93,6 @@ def build_recording_scene(ctx: ImportContext, out, rec: Path, camera: CameraMode
         sb.set_trajectory(trajectory(), "cam")
         sb.add_cli_objects(objects)
         ctx.progress(0.99, "writing scene")
-        sb.commit(camera)
+        sb.commit(camera, clock_offset_us=int(clock_offset_us()) if clock_offset_us is not None else 0)
     ctx.progress(1.0, "done")
     return result_summary(ctx, sb.out)
