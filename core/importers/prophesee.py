@@ -108,39 +108,26 @@ def _word_chunks(ctx: ImportContext, rec: Path, head):
             x, y, t, p = words.decode(block)
             yield x, y, t, p, f"events [{n}, {n + len(t)})", f.tell() / size
             n += len(t)
-    if evt2:
-        _report_evt2_words(ctx, rec, words)
-    elif head.version == "evt3":
-        _report_evt3_words(ctx, rec, words)
+    if head.version in ("evt2", "evt3"):
+        _report_words(ctx, rec, words, head.version)
 
 
-def _report_evt2_words(ctx: ImportContext, rec: Path, words: Evt2Words) -> None:
-    rep = ctx.report
+def _report_words(ctx: ImportContext, rec: Path, words, version: str) -> None:
+    """What a word decoder (:class:`Evt2Words`, :class:`Evt3Words`) counted, into the import report."""
+    rep, key, name = ctx.report, version, {"evt2": "EVT 2.0", "evt3": "EVT 3.0"}[version]
     if words.n_triggers:
         rep.assume(f"{rec.name}: {words.n_triggers} external trigger event(s) ignored")
     if words.n_skipped:
-        rep.counts["evt2_words_skipped"] = words.n_skipped
-    if words.n_unknown:
-        rep.counts["evt2_words_unknown"] = words.n_unknown
-        rep.warn(f"{rec.name}: {words.n_unknown} EVT 2.0 word(s) of unknown type skipped (first: word "
-                 f"{words.first_unknown:,} after the header); the file may be damaged or of another version")
-
-
-def _report_evt3_words(ctx: ImportContext, rec: Path, words: Evt3Words) -> None:
-    rep = ctx.report
-    if words.n_triggers:
-        rep.assume(f"{rec.name}: {words.n_triggers} external trigger event(s) ignored")
-    if words.n_skipped:
-        rep.counts["evt3_words_skipped"] = words.n_skipped
-    if words.n_time_low_back:
+        rep.counts[f"{key}_words_skipped"] = words.n_skipped
+    if getattr(words, "n_time_low_back", 0):
         rep.counts["evt3_time_low_back"] = words.n_time_low_back
         rep.assume(f"{rec.name}: {words.n_time_low_back} TIME_LOW word(s) step back within their TIME_HIGH; their "
                    "events keep the times as written (as OpenEB reads them) and are put in order")
-    if words.n_no_time:
+    if getattr(words, "n_no_time", 0):
         rep.counts["evt3_events_before_time"] = words.n_no_time
         rep.warn(f"{rec.name}: {words.n_no_time} event(s) before the stream's first TIME_HIGH and TIME_LOW have no "
                  "time: left out")
     if words.n_unknown:
-        rep.counts["evt3_words_unknown"] = words.n_unknown
-        rep.warn(f"{rec.name}: {words.n_unknown} EVT 3.0 word(s) of unknown type skipped (first: word "
+        rep.counts[f"{key}_words_unknown"] = words.n_unknown
+        rep.warn(f"{rec.name}: {words.n_unknown} {name} word(s) of unknown type skipped (first: word "
                  f"{words.first_unknown:,} after the header); the file may be damaged or of another version")

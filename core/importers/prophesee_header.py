@@ -36,27 +36,8 @@ class Header:
     payload: int
 
 
-def read_text_header(rec: Path) -> tuple[int, int]:
-    """``(length in bytes, t0 in µs)`` of the ``%`` lines at the start of ``rec``; refuses an empty file and one
-    without such lines."""
-    n, t0 = 0, 0
-    with open(rec, "rb") as f:
-        while n < _MAX_HEADER_BYTES:
-            line = f.readline(_MAX_HEADER_BYTES)
-            if not line.startswith(b"%"):
-                break
-            n += len(line)
-            words = line[1:].replace(b";", b" ").split()
-            if len(words) > 1 and words[0] in (b"t0", b"T0") and words[1].isdigit():
-                t0 = int(words[1])
-    if n == 0:
-        what = "empty file (0 bytes)" if os.path.getsize(rec) == 0 else "no '%' header line at its start"
-        raise ImportFailure(rec, "(header)", "-", f"{what}: {_NOT_PROPHESEE}")
-    return n, t0
-
-
-def header_lines(rec: Path) -> list[str]:
-    """The ``%`` lines at the start of ``rec`` (decoded as Latin-1, without line ends)."""
+def _raw_header_lines(rec: Path) -> list[bytes]:
+    """The ``%`` lines at the start of ``rec``, as read (line ends included), at most ``_MAX_HEADER_BYTES``."""
     out, n = [], 0
     with open(rec, "rb") as f:
         while n < _MAX_HEADER_BYTES:
@@ -64,8 +45,27 @@ def header_lines(rec: Path) -> list[str]:
             if not line.startswith(b"%"):
                 break
             n += len(line)
-            out.append(line.decode("latin-1").rstrip("\r\n"))
+            out.append(line)
     return out
+
+
+def read_text_header(rec: Path) -> tuple[int, int]:
+    """``(length in bytes, t0 in µs)`` of the ``%`` lines at the start of ``rec``; refuses an empty file and one
+    without such lines."""
+    lines, t0 = _raw_header_lines(rec), 0
+    for line in lines:
+        words = line[1:].replace(b";", b" ").split()
+        if len(words) > 1 and words[0] in (b"t0", b"T0") and words[1].isdigit():
+            t0 = int(words[1])
+    if not lines:
+        what = "empty file (0 bytes)" if os.path.getsize(rec) == 0 else "no '%' header line at its start"
+        raise ImportFailure(rec, "(header)", "-", f"{what}: {_NOT_PROPHESEE}")
+    return sum(len(line) for line in lines), t0
+
+
+def header_lines(rec: Path) -> list[str]:
+    """The ``%`` lines at the start of ``rec`` (decoded as Latin-1, without line ends)."""
+    return [line.decode("latin-1").rstrip("\r\n") for line in _raw_header_lines(rec)]
 
 
 def open_decoder(rec: Path, ctx: ImportContext):

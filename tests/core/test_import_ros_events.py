@@ -128,7 +128,10 @@ def test_mono_packets_and_a_metadata_without_storage(tmp_path, traj_and_cam):
     meta = bag / "metadata.yaml"
     meta.write_text(meta.read_text().replace("storage_identifier: mcap", 'storage_identifier: ""'))
     before = set(Path(tempfile.gettempdir()).glob(".evpose-bag-*"))
+    inputs = {p: p.read_bytes() for p in bag.iterdir()}
     import_scene("ros-events", [bag, traj, cam], tmp_path / "s", log=None)
+    # the temporary folder held links to the bag's files: removing it left every input as it was
+    assert {p: p.read_bytes() for p in bag.iterdir()} == inputs
     np.testing.assert_array_equal(_events(tmp_path / "s"), want)
     assert set(Path(tempfile.gettempdir()).glob(".evpose-bag-*")) == before
     report = json.loads((tmp_path / "s" / "import_report.json").read_text())
