@@ -29,10 +29,8 @@ def _shut_down(app, window) -> None:
     process (exit 134, "QThread: Destroyed while thread ... is still running") at interpreter exit."""
     if window.isVisible():
         window.close()                  # closeEvent stops the frame / space-time workers
-    for name in ("events_worker", "frame_worker", "spacetime_worker", "kymograph_worker"):
-        w = getattr(window, name, None)
-        if w is not None:
-            w.stop()
+    window.feeds.stop()
+    window.residual_feed.stop()
     app.processEvents()
 
 

@@ -22,10 +22,8 @@ from evpose.app.score_row import ScoreRowUpdater
 from evpose.app.settings import Settings
 from evpose.app.shortcut_guard import ShortcutGuard
 from evpose.app.undo_bridge import UndoBridge
-from evpose.app.workers import LatestWorker
-from evpose.core.data.event_cache import EventChunkCache
-from evpose.core.session.frames import EventFrame, FrameComputer, FrameData, SpaceTimeData
-from evpose.core.session.kymograph import KymographComputer, KymographData, KymographRequest
+from evpose.app.feeds import ViewFeeds
+from evpose.core.views.frame import FrameData
 from evpose.core.session.model import Session
 from evpose.core.session.view_state import REPRESENTATION_NAMES
 from evpose.core.signals import Change
@@ -36,7 +34,6 @@ from evpose.widgets.object_list import ObjectList
 from evpose.widgets.review_panel import ReviewPanel
 
 AUTOSAVE_MS = 20_000
-SPACETIME_DEBOUNCE_MS = 250   # the space-time view follows once scrubbing pauses: it must not slow the frame
 OVERLAY_ACTIONS = {"toggle_mask": "mask", "toggle_contour": "contour", "toggle_box": "box", "toggle_axes": "axes"}
 REPRESENTATION_LABELS = {"polarity": "Polarity (ON red / OFF blue)", "spike": "Spike (any event)",
                          "three_channel": "E-POSE 3-channel", "time_surface": "Time surface",
@@ -57,14 +54,11 @@ class MainWindow(QtWidgets.QMainWindow):
         self.controller = Controller(self)
         self.align = AlignController(self)
         self.score_row = ScoreRowUpdater(self)   # the timeline's scores: stale at once, recomputed in the background
-        self._spacetime_stale = False
         self.auto_answer: dict = {}
         self.last_error: str | None = None
         self.last_export = None
         self.dataset_window = None      # evpose.app.dataset_window.DatasetWindow, once a dataset is opened
         self.frame: FrameData | None = None
-        self._shown_serial = {"frame": 0, "events": 0, "spacetime": 0}
-        self._submitted_serial = {"frame": 0, "events": 0, "spacetime": 0}
         self._docks: list[QtWidgets.QDockWidget] = []
         self._session_connection = None
         self.undo_bridge: UndoBridge | None = None
@@ -74,36 +68,11 @@ class MainWindow(QtWidgets.QMainWindow):
         self.setAcceptDrops(True)
         self.setDockNestingEnabled(True)
 
-        # a frame request goes to two workers: the event image (cheap, painted at once) and the overlays
-        # (rasterised labels, the expensive part); both read windows through one byte-bounded cache of
-        # decoded event blocks, which the events worker fills ahead of the motion when idle
-        self.event_cache = EventChunkCache()
-        events_fc = FrameComputer(self.event_cache)
-        self.events_worker = LatestWorker(events_fc.events_stages, "frame-events-worker", idle=events_fc.prefetch)
-        self.events_worker.done.connect(self._events_ready)
-        self.events_worker.failed.connect(self._worker_failed)
-        # the overlays' rasteriser splits the meshes over two threads when there are two cores (the kernels
-        # release the GIL): 2.5 -> 1.6 ms for 3 YCB meshes in bench_raster
-        overlay_fc = FrameComputer(self.event_cache, raster_threads=min(2, os.cpu_count() or 1))
-        self.frame_worker = LatestWorker(overlay_fc.overlay_stages, "frame-worker", idle=overlay_fc.prefetch_overlays)
-        self.frame_worker.done.connect(self._frame_ready)
-        self.frame_worker.failed.connect(self._worker_failed)
-        spacetime_fc = FrameComputer(self.event_cache)      # idle: the silhouette slices of the next steps
-        self.spacetime_worker = LatestWorker(spacetime_fc.spacetime_stages, "spacetime-worker",
-                                             idle=spacetime_fc.prefetch_spacetime)
-        self.spacetime_worker.done.connect(self._spacetime_ready)
-        self.spacetime_worker.failed.connect(self._worker_failed)
-        kymograph_kc = KymographComputer(self.event_cache)    # the x-t slice; label maps cached by time and pose
-        self.kymograph_worker = LatestWorker(kymograph_kc.stages, "kymograph-worker")
-        self.residual_feed = ResidualFeed(self)      # the residual view (events vs the labels' edges)
-        self.kymograph_worker.done.connect(self._kymograph_ready)
-        self.kymograph_worker.failed.connect(self._worker_failed)
-        self._kymograph_serial = 0          # the last submitted request (older results are dropped)
+        # every view's request -> worker -> widget pipeline (app/feeds.py); the residual view has its own, with its dock
+        self.feeds = ViewFeeds(self)
+        self.residual_feed = ResidualFeed(self)
         #: gives freed heap pages and cached module sources back once the user pauses (app/memory.py)
         self.memory = IdleReleaser(self)
-        self._spacetime_timer = QtCore.QTimer(self, singleShot=True, interval=SPACETIME_DEBOUNCE_MS)
-        self._spacetime_timer.timeout.connect(self.request_spacetime)
-        self._spacetime_timer.timeout.connect(self.request_kymograph)
         self._autosave = QtCore.QTimer(self, interval=AUTOSAVE_MS)
         self._autosave.timeout.connect(lambda: self.session and self.session.write_journal())
         self._autosave.start()
@@ -294,7 +263,10 @@ class MainWindow(QtWidgets.QMainWindow):
             self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
         self._add_dock("Timeline", self.timeline, QtCore.Qt.BottomDockWidgetArea, "dock_timeline")
         L.bare_title(self._docks[3])    # no close button beside "Fit" (View ▸ Panels shows and hides it)
-        self._docks[2].visibilityChanged.connect(self._spacetime_visibility)
+        self.feeds.spacetime_dock = self._docks[2]
+        self._docks[2].visibilityChanged.connect(self.feeds.spacetime.visibility_changed)
+        self.timeline.data_feed = self.feeds.timeline.request    # the curves on a worker after a clock change
+
         self._add_kymograph_dock(session)
         self.residual_feed.attach(session, self._add_dock, self._docks[2])
         self.panel.residualsRequested.connect(self.residual_feed.show)
@@ -348,7 +320,6 @@ class MainWindow(QtWidgets.QMainWindow):
         self.settings.save_window(self, L.LAYOUT_VERSION)
         self.align.cancel_all()
         self.score_row.detach()
-        self._spacetime_timer.stop()
         if self._session_connection is not None:
             self._session_connection.disconnect()
             self._session_connection = None
@@ -367,15 +338,10 @@ class MainWindow(QtWidgets.QMainWindow):
             self.kymograph.shutdown()
             self.kymograph = None
         self.residual_feed.detach()
-        self._kymograph_serial = 1 << 62    # late kymographs of this session are dropped
-        # late worker results for the old session must find no views (they are being deleted)
+        # everything submitted so far belongs to the old session: dropped when it arrives; late results find no views
+        self.feeds.drop_pending()
         self.frame_view = self.panel = self.reviews = self.timeline = self.spacetime = self.objects = None
         self.frame = None
-        # everything submitted so far belongs to the old session: drop it when it arrives
-        floor = max(max(self._shown_serial.values()), max(self._submitted_serial.values()))
-        self._shown_serial = {"frame": floor, "events": floor, "spacetime": floor}
-        self._submitted_serial = {"frame": floor, "events": floor, "spacetime": floor}
-        self.event_cache.clear()
         for dock in self._docks:
             self.docks_menu.removeAction(dock.toggleViewAction())
             self.removeDockWidget(dock)
@@ -403,60 +369,30 @@ class MainWindow(QtWidgets.QMainWindow):
             # selected-only, outlines-only) are redrawn by the frame view from what it has, and neither the
             # space-time view nor the kymograph uses them: nothing to compute
             self.request_frame()
-            self._spacetime_timer.start()
+            self.feeds.spacetime.request()           # coalesced: follows once scrubbing pauses
+            self.feeds.kymograph.request()
         self.memory.poke()
         if change.kind == "view":
             self._sync_view_actions()
 
-    # ------------------------------------------------------------------ frames
+    # ------------------------------------------------------------------ views (app/feeds.py)
     def request_frame(self) -> None:
-        if self.session is not None:
-            req = self.session.request()
-            self._submitted_serial["frame"] = self._submitted_serial["events"] = req.serial
-            self.events_worker.submit(req)
-            self.frame_worker.submit(req)
+        self.feeds.request_frame()
 
     def request_spacetime(self) -> None:
-        """Recompute the space-time view, or mark it stale while its dock is closed (it is
-        computed when the dock is shown again: a hidden view costs nothing)."""
-        dock = self._docks[2] if len(self._docks) > 2 else None
-        if self.session is None or dock is None:
-            return
-        if dock.isHidden():
-            self._spacetime_stale = True
-            return
-        self._spacetime_stale = False
-        req = self.session.request()
-        self._submitted_serial["spacetime"] = req.serial
-        self.spacetime_worker.submit(req)
+        """Recompute the space-time view now, or mark it stale while its dock is closed (it is computed when the
+        dock is shown again: a hidden view costs nothing)."""
+        self.feeds.spacetime.timer.stop()
+        self.feeds.spacetime.request_now()
 
-    def _spacetime_visibility(self, visible: bool) -> None:
-        if visible and self._spacetime_stale:
-            self.request_spacetime()
-
-    def _events_ready(self, part: EventFrame | None, serial: int) -> None:
-        """The event image of a request, painted before its overlays (None: the events on screen are its)."""
-        if self.frame_view is None or serial <= self._shown_serial["events"]:
-            return  # stale
-        self._shown_serial["events"] = serial
-        if part is not None:
-            self.frame_view.set_events(part)
-
-    def _frame_ready(self, data: FrameData, serial: int) -> None:
-        """The overlays of a request: shown over the events (dimmed when those are of another window)."""
-        if self.frame_view is None or serial <= self._shown_serial["frame"]:
-            return  # stale
-        self._shown_serial["frame"] = serial
-        self.memory.poke()
-        self.frame = data
-        self.frame_view.set_overlays(data)
-        if self.objects is not None:
-            self.objects.set_scores(data.scores)
+    def request_kymograph(self) -> None:
+        """Recompute the kymograph for its line and the session's state, unless it is out of sight (a tab behind
+        another, a closed dock): it is computed when shown."""
+        self.feeds.kymograph.request_now()
 
     def _add_kymograph_dock(self, session: Session) -> None:
         """The kymograph (x-t slice along a line drawn across an object edge): a tab beside the space-time view,
-        closed until asked for (the space-time view's "Kymograph" button, View > Panels); computed while in sight
-        (:meth:`request_kymograph`)."""
+        closed until asked for (the space-time view's "Kymograph" button, View > Panels); computed while in sight."""
         from evpose.widgets.kymograph_view import KymographView
 
         self.kymograph = KymographView(session)
@@ -469,42 +405,36 @@ class MainWindow(QtWidgets.QMainWindow):
         dock.visibilityChanged.connect(lambda on: on and QtCore.QTimer.singleShot(0, self.request_kymograph))
         self.spacetime.kymographRequested.connect(lambda: (dock.show(), dock.raise_()))
 
-    def request_kymograph(self) -> None:
-        """Recompute the kymograph for its line and the session's state, unless it is out of sight (a tab behind
-        another, a closed dock): it is computed when shown."""
-        view = self.kymograph
-        if self.session is None or view is None or view.visibleRegion().isEmpty():
-            return
-        req = KymographRequest(self.session.request(), view.line, self.session.view.kymograph_span_us)
-        self._kymograph_serial = req.serial
-        self.kymograph_worker.submit(req)
-
-    def _kymograph_ready(self, data: KymographData, serial: int) -> None:
-        if self.kymograph is not None and serial >= self._kymograph_serial:
-            self.kymograph.set_data(data)
-
-    def _spacetime_ready(self, data: SpaceTimeData, serial: int) -> None:
-        if self.spacetime is None or serial <= self._shown_serial["spacetime"]:
-            return
-        self._shown_serial["spacetime"] = serial
-        self.memory.poke()
-        self.spacetime.set_data(data)
-
     def frame_up_to_date(self) -> bool:
         """True when the frame view shows the most recently requested state (events and overlays)."""
-        return self.frame is not None and self.events_up_to_date() and \
-            self._shown_serial["frame"] >= self._submitted_serial["frame"]
+        return self.feeds.up_to_date()
 
     def events_up_to_date(self) -> bool:
         """True when the frame view shows the events of the most recent request (overlays may follow)."""
-        return (self.frame_view is not None and self.frame_view.events is not None
-                and self._shown_serial["events"] >= self._submitted_serial["events"])
+        return self.feeds.events_up_to_date()
 
     def spacetime_drawn(self) -> bool:
         """True once the space-time view shows data for the current view (or is hidden)."""
-        dock = self._docks[2] if len(self._docks) > 2 else None
-        return dock is None or dock.isHidden() or (
-            self._submitted_serial["spacetime"] > 0 and self._shown_serial["spacetime"] >= self._submitted_serial["spacetime"])
+        return self.feeds.spacetime_drawn()
+
+    # the names the benches (bench_scrub, bench_memory) and their baselines from before app/feeds.py use
+    @property
+    def _spacetime_timer(self) -> QtCore.QTimer:
+        return self.feeds.spacetime.timer
+
+    @property
+    def event_cache(self):
+        return self.feeds.event_cache
+
+    @property
+    def _submitted_serial(self) -> dict:
+        f = self.feeds
+        return {"frame": f.frame.submitted, "events": f.events.submitted, "spacetime": f.spacetime.submitted}
+
+    @property
+    def _shown_serial(self) -> dict:
+        f = self.feeds
+        return {"frame": f.frame.shown, "events": f.events.shown, "spacetime": f.spacetime.shown}
 
     def _worker_failed(self, message: str, serial: int) -> None:
         self.statusBar().showMessage("could not compute the view: " + message.strip().splitlines()[-1], 10_000)
@@ -577,10 +507,7 @@ class MainWindow(QtWidgets.QMainWindow):
             job.cancel()
         self._teardown_session()
         self.settings.save_window(self, L.LAYOUT_VERSION)
-        self.events_worker.stop()
-        self.frame_worker.stop()
-        self.spacetime_worker.stop()
-        self.kymograph_worker.stop()
+        self.feeds.stop()
         self.residual_feed.stop()
         if self.dataset_window is not None:
             self.dataset_window.close()

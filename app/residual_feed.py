@@ -1,11 +1,10 @@
-"""The residual view's feed: session changes -> coalesced requests on a worker -> the widget (issue 25.1's pattern,
-its first client).
+"""The residual view's feed and dock: session changes -> requests on a worker -> the widget.
 
 The view is a dock tabbed with the space-time view, closed until asked for (View ▸ Panels, or the pose panel's
 Residuals button). While it is out of sight nothing is computed; when it comes into sight, and on every change of
-the time, the window, the shown objects or the document while it is in sight, one request is submitted to a
-:class:`~evpose.app.workers.LatestWorker` (a newer request replaces a pending one; late results are dropped by
-serial) that runs :func:`evpose.core.views.residuals.residuals` on the session's snapshot.
+the time, the window, the shown objects or the document while it is in sight, one request goes to its
+:class:`~evpose.app.view_feed.ViewFeed` (a newer request replaces a pending one; late results are dropped by
+serial), which runs :func:`evpose.core.views.residuals.residuals` on the session's snapshot.
 """
 from __future__ import annotations
 
@@ -13,7 +12,7 @@ import time
 
 from PySide6 import QtCore, QtWidgets
 
-from evpose.app.workers import LatestWorker
+from evpose.app.view_feed import ViewFeed
 from evpose.core.signals import Change
 
 __all__ = ["ResidualFeed", "RESIDUAL_KINDS"]
@@ -43,10 +42,8 @@ class ResidualFeed(QtCore.QObject):
         self.view = None
         self.dock: QtWidgets.QDockWidget | None = None
         self._connection = None
-        self._serial = 0
-        self.worker = LatestWorker(_compute, "residual-worker")
-        self.worker.done.connect(self._ready)
-        self.worker.failed.connect(self._failed)
+        self.feed = ViewFeed(self, "residual-worker", _compute, self._ready, make_request=self._request,
+                             in_sight=self.in_sight, on_failed=self._failed)
 
     def attach(self, session, add_dock, tab_with: QtWidgets.QDockWidget) -> QtWidgets.QDockWidget:
         """Show ``session``'s residuals in a new dock made by ``add_dock(title, widget, area, name)`` (the window's,
@@ -70,7 +67,7 @@ class ResidualFeed(QtCore.QObject):
             self._connection.disconnect()
             self._connection = None
         self.session = self.view = self.dock = None
-        self._serial = 1 << 62               # late results of the old session are dropped
+        self.feed.drop_pending()             # late results of the old session are dropped
 
     def show(self) -> None:
         if self.dock is not None:
@@ -84,23 +81,22 @@ class ResidualFeed(QtCore.QObject):
         if change.kind in RESIDUAL_KINDS:
             self.request()
 
+    def _request(self):
+        return self.session.request() if self.session is not None else None
+
     def request(self) -> None:
         """Submit the session's state, unless the view is out of sight (computed when shown)."""
-        if self.session is None or not self.in_sight():
-            return
-        req = self.session.request()
-        self._serial = req.serial
-        self.worker.submit(req)
+        self.feed.request()
 
     def _ready(self, result, serial: int) -> None:
-        if self.view is not None and serial >= self._serial:
+        if self.view is not None:
             data, ms = result
             self.view.set_data(data, ms)
 
     def _failed(self, message: str, serial: int) -> None:
-        if self.view is not None and serial >= self._serial:
+        if self.view is not None:
             self.view.status.setText("could not compute: " + message.strip().splitlines()[-1][:300])
 
     def stop(self) -> None:
         self.detach()
-        self.worker.stop()
+        self.feed.stop()

@@ -43,8 +43,8 @@ def configure_malloc() -> bool:
 
 #: Imported by :func:`preload_engine` before PySide6 (what the main window would import after it).
 ENGINE_MODULES = ("numpy", "scipy.spatial", "scipy.optimize", "cv2", "h5py", "trimesh", "evpose.core.label.raster",
-                  "evpose.core.label.annotate", "evpose.core.session.model", "evpose.core.session.frames",
-                  "evpose.core.align.score", "evpose.core.data.scene")
+                  "evpose.core.label.annotate", "evpose.core.session.model", "evpose.core.views.frame",
+                  "evpose.core.views.spacetime", "evpose.core.align.score", "evpose.core.data.scene")
 
 
 def preload_engine() -> list[str]:

@@ -10,7 +10,7 @@ Scenes (2-2.5 s each, cached in ``bench/.data/kymograph/``; a minute or a few to
 
 * ``evpose synth`` (full DAVIS346, objects box, cylinder and flatbox, 2 s): speeds 0.1 / 0.5 / 1.0 m/s,
   trajectories A and B, a clock offset injected per seed. The *tuning* seeds (1, 2, 3) are the ones the constants
-  of :mod:`evpose.core.session.kymograph_lag` and :mod:`~evpose.core.session.kymograph_confidence` were chosen
+  of :mod:`evpose.core.views.kymograph_lag` and :mod:`~evpose.core.views.kymograph_confidence` were chosen
   on; the *validation* seeds (11, 12, 13) check them. Caveat: the peak's refinement, ``MIN_PROMINENCE`` and the
   default line's cross-check (``AGREE_SIGMAS``) were chosen on the tuning split, but with the other splits'
   results in view, so they are not a strictly blind hold-out.
@@ -24,7 +24,7 @@ Readings: ``--times`` current times evenly over each recording (keeping the half
 its ends: pauses between camera moves included, as a user scrubbing would meet them), each read with the
 kymograph's default line (picked anew, as the "Default line" button does) at three clocks: the scene's prior
 (the clock error is minus the injected offset), the true clock, and 8 ms off it. The truth of a reading is the
-clock error in effect (``lag`` = offset in effect - true offset, see :mod:`~evpose.core.session.kymograph_lag`).
+clock error in effect (``lag`` = offset in effect - true offset, see :mod:`~evpose.core.views.kymograph_lag`).
 
 Output: one row per reading (scene, speed, true offset, clock error, reading ± σ, |err|/σ, or the reason it is
 too weak), then per split the distribution of |err|/σ over the readable ones (share within 2 and 4, the largest,
@@ -116,7 +116,7 @@ def ensure_raycast(scene: BenchScene) -> Path:
 
 def readings(scene: BenchScene, n_times: int) -> list[dict]:
     """The default line's reading at ``n_times`` times and the three clocks of :data:`CLOCK_ERRORS_US`."""
-    from evpose.core.session.kymograph import KymographComputer, KymographRequest
+    from evpose.core.views.kymograph import KymographComputer, KymographRequest
     from evpose.core.session.model import Session
 
     s = Session.open(ensure(scene))

@@ -144,7 +144,7 @@ def make_paths(window):
 class _Paths:
     def setup(self, window):
         from evpose.app.workers import LatestWorker
-        from evpose.core.session.frames import FrameComputer
+        from evpose.core.views.frame import FrameComputer
 
         self.w = window
         self.mode = "ours"
@@ -249,7 +249,7 @@ def distribution(xs) -> dict:
 
 def spacetime_updates(window, n: int) -> dict:
     """Space-time update per step of one window: ours (the app's worker) and the baseline (no slice cache)."""
-    from evpose.core.session.frames import FrameComputer
+    from evpose.core.views.frame import FrameComputer
 
     session, view = window.session, window.spacetime
     window._spacetime_timer.stop()

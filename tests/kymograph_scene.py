@@ -74,7 +74,7 @@ def edge_events(seed: int, speed_px_ms: float, lag_ms: float, rate: float = 1.0,
     strong, that far beside the edge, moving with it (a texture line parallel to the edge). Returns
     ``(LineEvents, track_t_ms, distances, travel_px)`` for ``estimate_lag`` (rows from -180 ms, 1 ms bins; the
     silhouette right of the edge)."""
-    from evpose.core.session.kymograph_lag import LineEvents
+    from evpose.core.views.kymograph_lag import LineEvents
 
     def edge(t):
         return 50 + speed_px_ms * np.clip(t, *moving_ms)
@@ -94,14 +94,14 @@ def edge_events(seed: int, speed_px_ms: float, lag_ms: float, rate: float = 1.0,
 
 
 def two_object_span(seed: int = 0, dark_lag_ms: float | None = None):
-    """A hand-made :class:`~evpose.core.session.kymograph_read.SpanData` (160x120 px, the clock right): object
+    """A hand-made :class:`~evpose.core.views.kymograph_read.SpanData` (160x120 px, the clock right): object
     0 ("dark") moves right at 0.8 px/ms but is as bright as the background, so makes no events; object 1 ("lit")
     moves down at 0.25 px/ms and its top and bottom edges fire; plus background noise. The fastest-moving
     object, which the default line used to cross, has no evidence at all. ``dark_lag_ms``: the dark object's left
     and right edges fire too, that much later than its track says (as a pose error or a texture line beside
     the edge would make them seem)."""
     from evpose.core.data.events import EventArray
-    from evpose.core.session.kymograph_read import BIN_US, SpanData
+    from evpose.core.views.kymograph_read import BIN_US, SpanData
 
     rng = np.random.default_rng(seed)
     H, W, tc = 120, 160, 1_000_000

@@ -31,7 +31,7 @@ from evpose.core.label.overlay import (
     drawn_objects,
     mask_contours,
 )
-from evpose.core.session.frames import EventFrame, FrameData
+from evpose.core.views.frame import EventFrame, FrameData
 from evpose.core.session.model import Session
 from evpose.core.signals import Change, OBJECTS, VIEW
 from evpose.widgets.binding import connect_view
@@ -59,7 +59,7 @@ DISPLAY_ONLY_FIELDS = frozenset({"contrast", "event_opacity", "mask_alpha", "sel
 
 
 class FrameView(QtWidgets.QWidget):
-    """Shows :class:`~evpose.core.session.frames.FrameData`; reports hover information.
+    """Shows :class:`~evpose.core.views.frame.FrameData`; reports hover information.
 
     Signals
     -------

@@ -3,7 +3,7 @@ each object's projected edge track on it, so that a clock offset shows as a shif
 streaks and the tracks (and a skew as a slow drift), and a readout of that shift (pyqtgraph).
 
 The widget is a view of a :class:`evpose.core.session.model.Session`: it draws the display-ready
-:class:`evpose.core.session.kymograph.KymographData` that core computes (``KymographComputer``) and that its owner
+:class:`evpose.core.views.kymograph.KymographData` that core computes (``KymographComputer``) and that its owner
 hands over with :meth:`KymographView.set_data`; it tells the owner when the line changes (``lineChanged``) and
 writes the span to the session's view state. Left: the current window's events and the silhouettes, where a
 left-drag draws the line (:mod:`~evpose.widgets.kymograph_line`); right: position along the line (x) against time
@@ -16,7 +16,7 @@ import pyqtgraph as pg
 import shiboken6
 from PySide6 import QtCore, QtWidgets
 
-from evpose.core.session.kymograph_confidence import REASONS
+from evpose.core.views.kymograph_confidence import REASONS
 from evpose.core.signals import Change, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.kymograph_line import FramePreview
@@ -29,9 +29,9 @@ READOUT_TEMPLATE = max(("\u2192 clock offset +000.0 ms aligns them", *REASONS), 
 
 
 def lag_text(lag) -> str:
-    """The readout of a :class:`~evpose.core.session.kymograph_lag.LagEstimate`, two lines: how much later the
+    """The readout of a :class:`~evpose.core.views.kymograph_lag.LagEstimate`, two lines: how much later the
     events happen than the tracks ± 1σ, and the clock offset change that aligns them (the negative of the lag,
-    see :mod:`evpose.core.session.kymograph_lag`); or that the reading is too weak, and why."""
+    see :mod:`evpose.core.views.kymograph_lag`); or that the reading is too weak, and why."""
     if lag.lag_ms is None:
         return "events vs track: too weak to read\n" + (lag.weak or "nothing measured")
     return (f"events vs track: {lag.lag_ms:+.1f} \u00b1 {lag.sigma_ms:.1f} ms\n"
@@ -153,7 +153,7 @@ class KymographView(QtWidgets.QWidget):
         self.lineChanged.emit()
 
     def set_data(self, data) -> None:
-        """Draw ``data`` (:class:`evpose.core.session.kymograph.KymographData`)."""
+        """Draw ``data`` (:class:`evpose.core.views.kymograph.KymographData`)."""
         if not self._alive():
             return
         self.data = data

@@ -1,6 +1,6 @@
 """The space-time view's split of the events into those near a silhouette (the band: drawn in their object's
 colour, on top) and the rest (dimmed, still by polarity), from the distances core computed
-(:class:`evpose.core.session.frames.SpaceTimeData` ``edge_px`` / ``nearest``).
+(:class:`evpose.core.views.frame.SpaceTimeData` ``edge_px`` / ``nearest``).
 
 The split is cached by the data's arrays and the settings, so handing the same data again uploads nothing.
 """

@@ -9,7 +9,7 @@ right clock the coloured events hug the skins; with a wrong one the moving edges
 
 The widget is a view of a :class:`evpose.core.session.model.Session`: it takes the session in its constructor,
 subscribes to its changes (view options, object visibility) and draws the display-ready
-:class:`evpose.core.session.frames.SpaceTimeData` that core computes (``FrameComputer.spacetime``). The owner
+:class:`evpose.core.views.frame.SpaceTimeData` that core computes (``FrameComputer.spacetime``). The owner
 (the app's controller or a test) computes that data, off the GUI thread if it likes, and hands it
 over with :meth:`SpaceTimeView.set_data`; the widget never imports ``app``.
 
@@ -173,7 +173,7 @@ class SpaceTimeView(QtWidgets.QWidget):
         return self.time_axis.px_per_ms
 
     def set_data(self, data) -> None:
-        """Draw ``data`` (:class:`evpose.core.session.frames.SpaceTimeData`): the events within the session's band
+        """Draw ``data`` (:class:`evpose.core.views.frame.SpaceTimeData`): the events within the session's band
         of a silhouette in their object's colour on top and the rest dimmed (or all by polarity, when the data has
         no distances or the session's ``spacetime_by_object`` is off), tubes and skins of the objects not hidden
         in the session, the current-window slab at t = 0 and the span's cage.

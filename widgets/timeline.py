@@ -1,7 +1,7 @@
 """The whole sequence at a glance: event rate, robot speed, review marks, alignment scores; scrub and play.
 
 x is seconds since the first event on the **event clock** (``(t_us - t_ref_us) * 1e-6``). The robot speed
-comes from :func:`evpose.core.session.timeline.timeline_data`, which maps each bin through the clock in effect, so a wrong
+comes from :func:`evpose.core.views.timeline.timeline_data`, which maps each bin through the clock in effect, so a wrong
 time offset shows as a horizontal shift between the event-rate and speed curves; the speed is recomputed
 (debounced) when the document's clock changes.
 
@@ -28,7 +28,7 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.session.model import Session
-from evpose.core.session.timeline import TimelineData, timeline_data
+from evpose.core.views.timeline import TIMELINE_BIN_US as BIN_US, TimelineData, timeline_data
 from evpose.core.signals import Change, DOCUMENT, OBJECTS, TIME, VIEW
 from evpose.widgets.binding import connect_view
 from evpose.widgets.timeline_controls import ControlBar
@@ -39,7 +39,6 @@ from evpose.widgets.timeline_scores import ScoreRow
 from evpose.widgets.timeline_scrub import Scrubber
 from evpose.widgets.timeline_style import MIN_PLOT_H, MIN_SCORE_H
 
-BIN_US = 1000                    # timeline bin (event rate and speed), µs
 MIN_X_RANGE_S = 0.005            # deepest zoom: 5 ms across the plot
 
 
@@ -70,6 +69,9 @@ class Timeline(QtWidgets.QWidget):
         self._marks_stale_key = None
         self._t_ref = int(session.scene.t_ref_us)   # x = 0: the first event (0 without events)
         self._data_key = None
+        #: set by the app: asks for the curves on a worker (its result comes back through :meth:`set_data`);
+        #: None: computed here, on the GUI thread
+        self.data_feed = None
 
         self.setFocusPolicy(QtCore.Qt.StrongFocus)
         self.scrubber = Scrubber(self)
@@ -155,15 +157,18 @@ class Timeline(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ data
     def refresh_data(self) -> None:
-        """Recompute the rate and the speed curves (clock in effect) and display them."""
+        """Recompute the rate and the speed curves (clock in effect) here and display them."""
         t = time.perf_counter()
         data = timeline_data(self.session.scene, BIN_US)
-        self.data_compute_ms = (time.perf_counter() - t) * 1e3
-        self._data_key = self._clock_key()
-        self.set_data(data)
+        self.set_data(data, self.clock_key(), (time.perf_counter() - t) * 1e3)
 
-    def set_data(self, data: TimelineData) -> None:
-        """Display whole-sequence curves computed in core (see :func:`evpose.core.session.timeline.timeline_data`)."""
+    def set_data(self, data: TimelineData, clock_key=None, compute_ms: float | None = None) -> None:
+        """Display whole-sequence curves computed in core (see :func:`evpose.core.views.timeline.timeline_data`),
+        computed with the clock ``clock_key`` (:meth:`clock_key`) in ``compute_ms``."""
+        if clock_key is not None:
+            self._data_key = clock_key
+        if compute_ms is not None:
+            self.data_compute_ms = compute_ms
         first = self.data is None
         self.data = data
         if len(data.t_s):
@@ -177,14 +182,18 @@ class Timeline(QtWidgets.QWidget):
             self.vb.setLimits(xMin=x0 - pad, xMax=x1 + pad)
         self.rate_plot.sync_views()
 
-    def _clock_key(self):
+    def clock_key(self):
+        """What the speed curves depend on: the clock offset and skew and the hand-eye correction in effect."""
         scene = self.session.scene
         c = scene.clock
         return c.offset_us, c.skew_ppm, scene.corrections.hand_eye_delta.tobytes()
 
     def _refresh_if_clock_changed(self) -> None:
-        if self._clock_key() != self._data_key:
-            self.refresh_data()
+        if self.clock_key() != self._data_key:
+            if self.data_feed is not None:
+                self.data_feed()
+            else:
+                self.refresh_data()
 
     # ------------------------------------------------------------------ session changes
     def _on_session(self, change: Change) -> None:

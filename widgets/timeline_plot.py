@@ -130,7 +130,7 @@ class RatePlot:
             v.enableAutoRange(x=False, y=False)     # robust range from set_curves: spikes do not squash the curve
 
     def set_curves(self, data) -> None:
-        """Show a :class:`~evpose.core.session.timeline.TimelineData`: rate, speeds (NaN where the
+        """Show a :class:`~evpose.core.views.timeline.TimelineData`: rate, speeds (NaN where the
         trajectory gives none) and the holes."""
         valid = np.asarray(data.speed_valid, bool)
         self.rate_item.setData(data.t_s, np.asarray(data.rate_hz, np.float64))

@@ -49,7 +49,7 @@ from evpose.core.document.pose_edit import drag_step, hand_eye_step, nudge_step
 from evpose.core.document.review import insert_mark, mark_state, stale_reasons
 from evpose.core.label import represent
 from evpose.core.label.overlay import object_color
-from evpose.core.session.frames import FrameRequest
+from evpose.core.views.request import FrameRequest
 from evpose.core.session.view_state import OVERLAY_KINDS, CountGrid, ViewState
 from evpose.core.signals import Change, Signal
 
@@ -464,7 +464,7 @@ class Session:
 
     # ------------------------------------------------------------------ snapshots for workers
     def request(self) -> FrameRequest:
-        """A snapshot for the frame workers (:class:`~evpose.core.session.frames.FrameComputer`): the document's
+        """A snapshot for the frame workers (:class:`~evpose.core.views.frame.FrameComputer`): the document's
         corrections, or the preview's while one is set (:meth:`set_preview`)."""
         corrections = self.scene.corrections if self.preview is None else self.preview
         # serials grow across sessions, so a late result of a closed scene is always stale

@@ -7,7 +7,8 @@ import threading
 
 import pytest
 
-from evpose.core.session.frames import FrameComputer
+from evpose.core.views.frame import FrameComputer
+from evpose.core.views.spacetime import SpaceTimeComputer
 from evpose.widgets.frame_view import STALE_OVERLAY_OPACITY
 
 
@@ -17,7 +18,7 @@ def gate(monkeypatch):
     gate = threading.Event()
     gate.set()
     gate.overlay_serials, gate.spacetime_serials = [], []
-    overlay, spacetime = FrameComputer.overlay_stages, FrameComputer.spacetime_stages
+    overlay, spacetime = FrameComputer.overlay_stages, SpaceTimeComputer.spacetime_stages
 
     def gated_overlays(self, req):
         gate.overlay_serials.append(req.serial)
@@ -30,7 +31,7 @@ def gate(monkeypatch):
         return (yield from spacetime(self, req))
 
     monkeypatch.setattr(FrameComputer, "overlay_stages", gated_overlays)
-    monkeypatch.setattr(FrameComputer, "spacetime_stages", gated_spacetime)
+    monkeypatch.setattr(SpaceTimeComputer, "spacetime_stages", gated_spacetime)
     return gate
 
 

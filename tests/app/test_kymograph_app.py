@@ -3,8 +3,8 @@ space-time view's "Kymograph…" button, computed off the GUI thread for the def
 readout (a reading ± σ, or "too weak to read" and why; issue 23, part 8) is never cut off on a laptop screen."""
 from PySide6 import QtWidgets
 
-from evpose.core.session.kymograph_confidence import REASONS
-from evpose.core.session.kymograph_lag import MAX_LAG_MS, LagEstimate
+from evpose.core.views.kymograph_confidence import REASONS
+from evpose.core.views.kymograph_lag import MAX_LAG_MS, LagEstimate
 from evpose.widgets.kymograph_view import lag_text
 
 #: Room a desktop takes from a 1366x768 screen (a panel and the title bar), as in test_layout.py.

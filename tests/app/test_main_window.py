@@ -20,7 +20,7 @@ def test_fix_offset_through_the_panel(qtbot, window, scene_copy):
     s = window.controller.open_scene(scene_copy)
     assert s is not None and window.windowTitle().startswith("evpose — ")
     # the fastest windows (a clock offset matters most there): share of events on the dilated masks
-    from evpose.core.session.timeline import timeline_data
+    from evpose.core.views.timeline import timeline_data
 
     td = timeline_data(s.scene, bin_us=10_000)
     fastest = np.argsort(np.where(td.speed_valid, td.speed_mps, 0))[-6:]
@@ -220,7 +220,8 @@ def test_display_options_recompute_nothing(qtbot, window, scene_copy):
     timer = window._spacetime_timer
     qtbot.waitUntil(lambda: not timer.isActive() and window.frame_up_to_date(), timeout=30_000)
     frames = []
-    window.events_worker.submit = lambda req, real=window.events_worker.submit: (frames.append(req), real(req))[1]
+    worker = window.feeds.events.worker
+    worker.submit = lambda req, real=worker.submit: (frames.append(req), real(req))[1]
     s.set_view_option(contrast=2.0, event_opacity=0.5, mask_alpha=0.6)
     s.set_view_option(selected_only=True, outline_only=True)
     assert not timer.isActive() and frames == []

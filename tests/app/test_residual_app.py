@@ -8,8 +8,8 @@ def test_the_residual_dock_shows_the_window_and_follows_the_time(qtbot, window, 
     feed = window.residual_feed
     assert feed.dock is not None and feed.dock.isHidden() and feed.view.data is None
     submitted = []
-    original = feed.worker.submit
-    feed.worker.submit = lambda req: (submitted.append(req), original(req))
+    original = feed.feed.worker.submit
+    feed.feed.worker.submit = lambda req: (submitted.append(req), original(req))
     ev = session.scene.events
     session.set_time((ev.t_first_us + ev.t_last_us) // 2)
     qtbot.wait(200)

@@ -20,12 +20,12 @@ from kymograph_scene import (
 )
 
 from evpose.core.data.events import EventArray
-from evpose.core.session import kymograph_confidence as conf
-from evpose.core.session.kymograph import KymographComputer, KymographRequest, bin_events, link_segments
-from evpose.core.session.kymograph_lag import estimate_lag
-from evpose.core.session.kymograph_line import KymoLine, crossing_distances, default_line, labels_along
-from evpose.core.session.kymograph_pick import pick_default_line
-from evpose.core.session.kymograph_read import read_line
+from evpose.core.views import kymograph_confidence as conf
+from evpose.core.views.kymograph import KymographComputer, KymographRequest, bin_events, link_segments
+from evpose.core.views.kymograph_lag import estimate_lag
+from evpose.core.views.kymograph_line import KymoLine, crossing_distances, default_line, labels_along
+from evpose.core.views.kymograph_pick import pick_default_line
+from evpose.core.views.kymograph_read import read_line
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,7 @@
 Pixel convention: OpenCV's, pixel centres at integers. Contours are polylines through the
 centres of the mask's boundary pixels; axes and box edges are the projections of 3D points as
 ``cv2.projectPoints`` computes them (distortion included). The last test checks the same
-through :class:`~evpose.core.session.frames.FrameComputer` on the tiny synthetic scene.
+through :class:`~evpose.core.views.frame.FrameComputer` on the tiny synthetic scene.
 """
 from __future__ import annotations
 
@@ -145,7 +145,7 @@ def test_compose_masks_colours_each_object_and_leaves_the_rest_transparent():
 def tiny_frame(tiny_scene_dir):
     from dataclasses import replace
 
-    from evpose.core.session.frames import FrameComputer, FrameRequest
+    from evpose.core.views.frame import FrameComputer, FrameRequest
     from evpose.core.session.model import Session
 
     s = Session.open(tiny_scene_dir)

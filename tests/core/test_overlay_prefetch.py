@@ -1,4 +1,4 @@
-"""Overlays computed ahead of the user (core/session/overlay_cache.py, FrameComputer.prefetch_overlays).
+"""Overlays computed ahead of the user (core/views/overlay_cache.py, FrameComputer.prefetch_overlays).
 
 While the overlay worker is idle it computes the next window in the user's direction and step; the next
 request takes that result only when it would compute exactly the same thing (same corrections, window,
@@ -11,9 +11,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from evpose.core.session.frames import FrameComputer, run_stages
+from evpose.core.views.frame import FrameComputer, run_stages
 from evpose.core.session.model import Session
-from evpose.core.session.overlay_cache import OverlayCache
+from evpose.core.views.overlay_cache import OverlayCache
 
 
 @pytest.fixture

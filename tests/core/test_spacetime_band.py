@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from kymograph_scene import TRUE_OFFSET_US, kymograph_scene, moving_time_us
 
-from evpose.core.session.frames import FrameComputer
-from evpose.core.session.spacetime_band import (
+from evpose.core.views.spacetime import SpaceTimeComputer
+from evpose.core.views.spacetime_band import (
     FIELD_CLIP_PX,
     event_edge_distance,
     merged_field,
     signed_field,
     stacked_fields,
 )
-from evpose.core.session.spacetime_surface import RING_POINTS, resample_ring, tube_surface
+from evpose.core.views.spacetime_surface import RING_POINTS, resample_ring, tube_surface
 
 
 def half_plane(width=60, height=20, edge=20):
@@ -68,7 +68,7 @@ def test_more_events_in_the_band_at_the_true_clock(tmp_path_factory):
     try:
         s.set_time(moving_time_us(path, *s.time_range))
         s.set_view_option(spacetime_slices=8)
-        fc = FrameComputer()
+        fc = SpaceTimeComputer()
         share = {}
         for error_us in (0, -20_000):
             s.set_offset_correction_us(TRUE_OFFSET_US + error_us)

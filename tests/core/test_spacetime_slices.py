@@ -7,8 +7,9 @@ import pytest
 
 from evpose.core.label.overlay import mask_contours
 from evpose.core.label.windows import Window
-from evpose.core.session.frames import FrameComputer
-from evpose.core.session.spacetime_slices import SliceCache, compute_slice, slice_key, slice_nbytes, slice_times
+from evpose.core.views.frame import FrameComputer
+from evpose.core.views.spacetime import SpaceTimeComputer
+from evpose.core.views.spacetime_slices import SliceCache, compute_slice, slice_key, slice_nbytes, slice_times
 
 
 @pytest.fixture
@@ -31,7 +32,7 @@ def assert_same(a, b):
 
 
 def test_steps_with_cache_and_prefetch_equal_fresh_computations(session):
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     first = fc.spacetime(session.request())
     assert first.tubes and len(first.points)
     assert fc.slice_cache.misses > 0 and fc.slice_cache.hits == 0
@@ -43,22 +44,22 @@ def test_steps_with_cache_and_prefetch_equal_fresh_computations(session):
         ours = fc.spacetime(req)
         if step == 1:       # stepped in the direction of motion: every slice was ready
             assert fc.slice_cache.misses == misses, "the prefetch did not compute the next step's slices"
-        assert_same(ours, FrameComputer().spacetime(req))
+        assert_same(ours, SpaceTimeComputer().spacetime(req))
 
 
 def test_a_pose_change_misses_and_matches_a_fresh_computation(session):
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     fc.spacetime(session.request())
     hits = fc.slice_cache.hits
     session.set_offset_correction_us(session.scene.corrections.offset_us + 3_000)   # every pose moves
     req = session.request()
     ours = fc.spacetime(req)
     assert fc.slice_cache.hits == hits, "slices of the old poses were reused"
-    assert_same(ours, FrameComputer().spacetime(req))
+    assert_same(ours, SpaceTimeComputer().spacetime(req))
 
 
 def test_prefetch_stops_when_asked_and_follows_the_motion(session):
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     assert fc.prefetch_spacetime() == 0                      # nothing requested yet
     fc.spacetime(session.request())
     assert fc.prefetch_spacetime(should_stop=lambda: True) == 0
@@ -75,10 +76,10 @@ def test_prefetch_stops_when_asked_and_follows_the_motion(session):
 
 
 def test_slice_contours_are_the_frame_views_visible_mask_contours(session):
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     req = session.request()
     fc.spacetime(req)
-    ann = fc._annotator_for(req.scene)                       # the frame's annotator (visible masks)
+    ann = FrameComputer()._annotator_for(req.scene)          # the frame's annotator (visible masks)
     t = int(session.view.t_us)
     T_co, T_bc, valid = ann.poses([t])
     assert valid[0]
@@ -120,7 +121,7 @@ def test_slice_cache_is_bounded_in_bytes_and_keeps_the_recently_used():
 
 
 def test_the_computers_slice_cache_stays_within_its_byte_bound(session):
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     fc.slice_cache = SliceCache(max_bytes=120_000)
     for _ in range(6):
         fc.spacetime(session.request())
@@ -133,7 +134,7 @@ def test_caches_derived_from_slices_keep_no_slice_the_slice_cache_dropped(sessio
     alive: the slice cache's byte bound holds for everything a slice carries."""
     import gc
 
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     fc.slice_cache.max_bytes = 1 << 20
     for k in range(12):
         session.set_offset_correction_us(session.scene.corrections.offset_us + 700 * (k + 1))   # new poses: new slices

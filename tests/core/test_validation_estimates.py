@@ -127,8 +127,8 @@ def test_a_mounting_error_is_not_made_a_clock_error(validation_scene, evaluate, 
 def test_the_kymograph_is_too_weak_to_read_in_a_pause(validation_scene):
     from kymograph_scene import still_time_us
 
-    from evpose.core.session import kymograph_confidence as conf
-    from evpose.core.session.kymograph import KymographComputer, KymographRequest
+    from evpose.core.views import kymograph_confidence as conf
+    from evpose.core.views.kymograph import KymographComputer, KymographRequest
     from evpose.core.session.model import Session
 
     folder = validation_scene("textured")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from test_spacetime_view import H_CANVAS, W_CANVAS, colour_mask, reddish, render
 
-from evpose.core.session.frames import SpaceTimeData
+from evpose.core.views.spacetime import SpaceTimeData
 from evpose.widgets.spacetime_style import BAND_ALPHA
 
 

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from evpose.core.session.frames import FrameComputer, SpaceTimeData
+from evpose.core.views.spacetime import SpaceTimeComputer, SpaceTimeData
 
 W_CANVAS, H_CANVAS = 640, 480
 
@@ -122,7 +122,7 @@ def test_time_scale_rescales_depth_without_set_data(qtbot, view, session, monkey
 
 def test_tube_colours_and_hidden_objects(qtbot, view, session):
     session.set_view_option(spacetime_slices=6)          # real data, fewer silhouettes: a faster test
-    fc = FrameComputer()
+    fc = SpaceTimeComputer()
     data = fc.spacetime(session.request())
     assert len(data.points) > 0 and data.tubes, "fixture scene should have events and objects in view"
     names = [name for name, _, _ in data.tubes]
@@ -160,7 +160,7 @@ def test_spin_boxes_write_and_follow_view_state(qtbot, view, session):
     assert session.view.spacetime_span_us == 250_000
     session.set_view_option(spacetime_budget=77_000, spacetime_span_us=40_000, spacetime_slices=4)
     assert view.budget_spin.value() == 77_000 and view.span_spin.value() == 40
-    data = FrameComputer().spacetime(session.request())
+    data = SpaceTimeComputer().spacetime(session.request())
     assert data.span_us == 40_000 and len(data.points) <= 77_000
     view.set_data(data)
     cam = session.scene.camera                       # untouched time scale follows the span
@@ -240,7 +240,7 @@ def test_lean_points_draw_the_same_pixels_as_stock_markers(qtbot, session, monke
     with and without silhouette tubes."""
     from evpose.widgets.spacetime_view import SpaceTimeView
 
-    data = FrameComputer().spacetime(session.request())
+    data = SpaceTimeComputer().spacetime(session.request())
     assert data.tubes and len(data.points) > 1000
     mixed = sheet(session, 1, n=30_000, seed=5)
     mixed.polarity[::2] = 0

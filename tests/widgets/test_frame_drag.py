@@ -6,7 +6,7 @@ import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.data.geometry import apply_T, pose_error
-from evpose.core.session.frames import FrameComputer
+from evpose.core.views.frame import FrameComputer
 from evpose.widgets.frame_view import FrameView
 
 

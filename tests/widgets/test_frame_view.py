@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from PySide6 import QtCore, QtWidgets
 
-from evpose.core.session.frames import FrameComputer
+from evpose.core.views.frame import FrameComputer
 from evpose.widgets.frame_view import FrameView
 
 

@@ -11,8 +11,8 @@ import pytest
 from kymograph_scene import TRUE_OFFSET_US, kymograph_scene, moving_session, still_time_us
 from PySide6 import QtCore
 
-from evpose.core.session import kymograph_confidence as conf
-from evpose.core.session.kymograph import KymographComputer, KymographRequest
+from evpose.core.views import kymograph_confidence as conf
+from evpose.core.views.kymograph import KymographComputer, KymographRequest
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import pyqtgraph as pg
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from evpose.core.session.timeline import TimelineData
+from evpose.core.views.timeline import TimelineData
 from evpose.widgets.timeline import Timeline
 from evpose.widgets.timeline_scrub import SCRUB_INTERVAL_MS
 from evpose.widgets.timeline_style import STATUS_COLORS
@@ -390,7 +390,9 @@ def test_a_stale_score_row_is_dimmed_with_a_label(tl, session, qtbot):
 
 
 # ---------------------------------------------------------------------- scale and looks
-def test_a_million_bins_stay_fast(tl, session, qtbot):
+def test_a_million_bins_are_downsampled_and_clipped_to_the_view(tl, session, qtbot):
+    """A 1000 s recording: the curves drawn are downsampled (whole view) and clipped (zoomed in), which is what keeps
+    set + draw and a drag fast (times printed, not asserted: timings belong to bench/, bench_scrub)."""
     n = 1_000_000  # 1000 s at 1 ms
     t_s = (np.arange(n) + 0.5) * 1e-3
     rng = np.random.default_rng(0)
@@ -412,7 +414,6 @@ def test_a_million_bins_stay_fast(tl, session, qtbot):
     QtWidgets.QApplication.processEvents()
     assert len(tl.rate_item.getData()[0]) < 5_000
     print(f"1e6 bins: set+draw {t_draw * 1e3:.0f} ms, 200 drag steps {t_drag * 1e3:.0f} ms")
-    assert t_draw < 3.0 and t_drag < 3.0
 
 
 def test_screenshot(tl, session, qtbot):

@@ -3,7 +3,7 @@ legend stands above the scores, and scores above 1 stay in view."""
 import numpy as np
 import pytest
 
-from evpose.core.session.timeline import TimelineData
+from evpose.core.views.timeline import TimelineData
 from evpose.widgets.timeline import Timeline
 from evpose.widgets.timeline_plot import robust_range
 

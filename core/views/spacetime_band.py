@@ -137,7 +137,7 @@ def stacked_fields(merged: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 
 class SliceValue(list):
     """One silhouette slice ``[(name, in_view, contours, field)]`` (a list that can be weakly referenced): the
-    caches derived from slices (:class:`MergedFieldCache`, :class:`~evpose.core.session.spacetime_surface.SurfaceCache`)
+    caches derived from slices (:class:`MergedFieldCache`, :class:`~evpose.core.views.spacetime_surface.SurfaceCache`)
     recognise a slice by identity without keeping it alive, so the slice cache's byte bound holds for everything
     a slice carries."""
 

@@ -3,7 +3,7 @@
 σ has three parts, added in quadrature:
 
 * the spread of the events: the lag's score is a sum over the track times
-  (:func:`~evpose.core.session.kymograph_lag.lag_parts`), so the track times are drawn again by a moving-block
+  (:func:`~evpose.core.views.kymograph_lag.lag_parts`), so the track times are drawn again by a moving-block
   bootstrap (blocks of ``BLOCK`` consecutive times: neighbouring times see overlapping events), the peak is found
   again on each redrawn sum, and this part is the root mean square of those peaks about the reading. A peak that
   stands on a few track times, or that another peak nearly matches, moves between draws. The draws are seeded:
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.core.session.kymograph_lag import (
+from evpose.core.views.kymograph_lag import (
     MOVING_PX_PER_MS,
     LagEstimate,
     TimeParts,

@@ -6,10 +6,10 @@ A request (:class:`KymographRequest`) is a frame request (the session snapshot) 
 app computes it on a worker thread with :meth:`KymographComputer.stages` (checkpoints between label maps).
 Tracks come from the label maps (one z-buffered render per track time, the poses and clock in effect) sampled
 along the line; the maps are cached by time and poses (byte-bounded), so moving the line, or a step in time,
-renders only what is new. The readout (:mod:`~evpose.core.session.kymograph_lag`) is the lag of the event
+renders only what is new. The readout (:mod:`~evpose.core.views.kymograph_lag`) is the lag of the event
 streaks behind the tracks, per object and combined, with its 1σ or the reason it is too weak to read
-(:mod:`~evpose.core.session.kymograph_confidence`); the default line is the first of the lines across the shown
-objects, by evidence, that reads (:mod:`~evpose.core.session.kymograph_pick`).
+(:mod:`~evpose.core.views.kymograph_confidence`); the default line is the first of the lines across the shown
+objects, by evidence, that reads (:mod:`~evpose.core.views.kymograph_pick`).
 """
 from __future__ import annotations
 
@@ -23,12 +23,12 @@ from evpose.core.label import represent
 from evpose.core.label.annotate import Annotator
 from evpose.core.label.overlay import mask_contours, object_color
 from evpose.core.label.windows import Window
-from evpose.core.session.frames import FrameRequest, run_stages
-from evpose.core.session.kymograph_confidence import NO_TRACK
-from evpose.core.session.kymograph_lag import MAX_LAG_MS, LagEstimate
-from evpose.core.session.kymograph_line import KymoLine
-from evpose.core.session.kymograph_pick import pick_default_line
-from evpose.core.session.kymograph_read import (  # noqa: F401  (bin_events, link_segments: part of this API)
+from evpose.core.views.request import FrameRequest, WindowReader, run_stages
+from evpose.core.views.kymograph_confidence import NO_TRACK
+from evpose.core.views.kymograph_lag import MAX_LAG_MS, LagEstimate
+from evpose.core.views.kymograph_line import KymoLine
+from evpose.core.views.kymograph_pick import pick_default_line
+from evpose.core.views.kymograph_read import (  # noqa: F401  (bin_events, link_segments: part of this API)
     BIN_US,
     EdgeTrack,
     LineReading,
@@ -37,7 +37,7 @@ from evpose.core.session.kymograph_read import (  # noqa: F401  (bin_events, lin
     link_segments,
     read_line,
 )
-from evpose.core.session.spacetime_slices import SLICE_REQUEST, slice_key, slice_times
+from evpose.core.views.spacetime_slices import SLICE_REQUEST, slice_key, slice_times
 
 #: Edge tracks are sampled at this many times over the span (a step of 4 ms over the default 200 ms).
 TRACK_SAMPLES = 50
@@ -95,7 +95,7 @@ class KymographData:
 
 
 class LabelMapCache:
-    """Label maps (int8) by :func:`~evpose.core.session.spacetime_slices.slice_key`, least recently used first out
+    """Label maps (int8) by :func:`~evpose.core.views.spacetime_slices.slice_key`, least recently used first out
     beyond ``max_bytes``; ``hits`` / ``misses`` count the lookups."""
 
     def __init__(self, max_bytes: int = LABEL_CACHE_BYTES):
@@ -140,7 +140,7 @@ def counts_rgb(on: np.ndarray, off: np.ndarray) -> np.ndarray:
     return np.round(img * 255.0).astype(np.uint8)
 
 
-class KymographComputer:
+class KymographComputer(WindowReader):
     """Computes :class:`KymographData` from :class:`KymographRequest`; caches the annotator and the label maps
     (use one instance per worker thread).
 
@@ -151,7 +151,7 @@ class KymographComputer:
     """
 
     def __init__(self, cache=None):
-        self.cache = cache
+        super().__init__(cache)
         self.maps = LabelMapCache()
         self._ann: Annotator | None = None
         self._ann_key = None
@@ -168,11 +168,6 @@ class KymographComputer:
         self._ann.scene = scene
         return self._ann
 
-    def _events(self, scene, t0_us: int, t1_us: int):
-        if self.cache is not None:
-            return self.cache.window(scene.events, t0_us, t1_us)
-        return scene.events.window(t0_us, t1_us)
-
     def stages(self, req: KymographRequest):
         """Generator: yields None after the event read and after every few label maps (checkpoints for a
         worker); returns the :class:`KymographData`."""
@@ -182,7 +177,7 @@ class KymographComputer:
         lag_us = int(MAX_LAG_MS * 1000)
         n_ext = -(-(2 * half + 2 * lag_us) // BIN_US)
         t_ext0 = tc - half - lag_us
-        ev = self._events(scene, t_ext0, t_ext0 + n_ext * BIN_US)
+        ev = self._window_events(scene, t_ext0, t_ext0 + n_ext * BIN_US)
         yield None
         ann = self._annotator(scene)
         times = slice_times(tc - half, 2 * half + 1, TRACK_SAMPLES, view.grid_origin_us)

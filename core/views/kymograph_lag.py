@@ -15,7 +15,7 @@ sum) and refined by a parabola through the edge score one time bin either side (
 the bins' centres: a parabola through closer samples would lock the lag to those). Only track times whose
 crossings move along the line count in full (``MOVING_PX_PER_MS``): a still edge tells nothing about the lag,
 yet shifted onto a busy moment it would score. How far to trust the lag (its 1σ, or why it is too weak to read) is
-:mod:`~evpose.core.session.kymograph_confidence`'s.
+:mod:`~evpose.core.views.kymograph_confidence`'s.
 
 Sign: ``lag > 0`` means the events happen *later* than the track says (the track runs ahead): the poses in
 effect are taken ``lag`` too late on the pose clock, i.e. the clock offset in effect is ``lag`` too large. A
@@ -149,7 +149,7 @@ class LagEstimate:
     lag_ms, sigma_ms : float or None
         The reading and its standard deviation (ms); None when too weak to read (see ``weak``).
     weak : str or None
-        Why the reading is too weak (one of :mod:`~evpose.core.session.kymograph_confidence`'s reasons); None
+        Why the reading is too weak (one of :mod:`~evpose.core.views.kymograph_confidence`'s reasons); None
         when it is readable.
     peak_ms : float or None
         The score's peak, also when too weak (None: nothing was searched).
@@ -163,15 +163,15 @@ class LagEstimate:
         Track times whose crossings move along the line (those slower than ``MOVING_PX_PER_MS`` in part).
     speed : float
         The edge's speed along the line where the events are (px/ms, see
-        :func:`~evpose.core.session.kymograph_confidence.evidence_speed`).
+        :func:`~evpose.core.views.kymograph_confidence.evidence_speed`).
     evidence : float
-        How much the line tells about the lag (see :func:`~evpose.core.session.kymograph_confidence.evidence`):
+        How much the line tells about the lag (see :func:`~evpose.core.views.kymograph_confidence.evidence`):
         the default line is the one with the most.
     spread_ms : float or None
         The part of σ the block bootstrap sees (ms; None until judged that far).
     prominence : float or None
         The edge score at the reading above its best rival peak farther than ``max(RIVAL_MS, 2σ)``, as a share of
-        its height above the median (see :func:`~evpose.core.session.kymograph_confidence.prominence`; None until
+        its height above the median (see :func:`~evpose.core.views.kymograph_confidence.prominence`; None until
         judged that far).
     parts : TimeParts or None
         The per-time scores the estimate was made of (the bootstrap redraws them, :func:`combine` pools them).
@@ -289,7 +289,7 @@ def estimate_lag(events: LineEvents, track_t_ms, distances, travel_px: float, ju
     """The lag of the events behind one object's track (see :func:`lag_parts` and :class:`LagEstimate`);
     ``travel_px``: how far the track moves along the line over the span (a still edge has no lag to measure).
     ``judge`` False: the peak and its evidence only, no σ and no verdict yet (see :func:`judged`)."""
-    from evpose.core.session.kymograph_confidence import FEW_TIMES, NO_MOTION
+    from evpose.core.views.kymograph_confidence import FEW_TIMES, NO_MOTION
 
     d = np.asarray(distances, np.float64)
     n_times = int(np.isfinite(d).any(axis=1).sum()) if d.size else 0
@@ -303,9 +303,9 @@ def estimate_lag(events: LineEvents, track_t_ms, distances, travel_px: float, ju
 
 def judged(lags: np.ndarray, parts: TimeParts, n_times: int, judge: bool = True) -> LagEstimate:
     """The estimate of pooled per-time parts: the peak and its evidence
-    (:func:`~evpose.core.session.kymograph_confidence.measure`), and unless ``judge`` is False its 1σ and
-    whether it is readable (:func:`~evpose.core.session.kymograph_confidence.judge`)."""
-    from evpose.core.session import kymograph_confidence as conf
+    (:func:`~evpose.core.views.kymograph_confidence.measure`), and unless ``judge`` is False its 1σ and
+    whether it is readable (:func:`~evpose.core.views.kymograph_confidence.judge`)."""
+    from evpose.core.views import kymograph_confidence as conf
 
     score, edge = curves(parts.edge, parts.region)
     lag = peak_lags(lags, score[:, None], edge[:, None], refine_window(parts), parts.bin_ms)

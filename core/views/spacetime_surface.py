@@ -12,7 +12,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from evpose.core.session.spacetime_band import drop_dead, value_ref
+from evpose.core.views.spacetime_band import drop_dead, value_ref
 
 #: Points per resampled contour ring.
 RING_POINTS = 48

@@ -1,8 +1,8 @@
 """The kymograph's default line: of the lines across the shown objects along their motion
-(:func:`~evpose.core.session.kymograph_line.candidate_lines`), one with enough evidence about the lag.
+(:func:`~evpose.core.views.kymograph_line.candidate_lines`), one with enough evidence about the lag.
 
-Every candidate is read as a drawn line would be (:func:`~evpose.core.session.kymograph_read.read_line`) but not
-judged yet, and ranked by its evidence (:func:`~evpose.core.session.kymograph_confidence.evidence`: how fast its
+Every candidate is read as a drawn line would be (:func:`~evpose.core.views.kymograph_read.read_line`) but not
+judged yet, and ranked by its evidence (:func:`~evpose.core.views.kymograph_confidence.evidence`: how fast its
 edges move along it where their own events are), the selected object's best line first. The first
 ``JUDGED_LINES`` of them are judged (σ and verdict), and the first that reads is the default line: the order does
 not depend on σ, so its σ is not the smallest of many noisy ones. One clock moves every track, so the other
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.core.session.kymograph_confidence import DISAGREE
-from evpose.core.session.kymograph_line import candidate_lines
-from evpose.core.session.kymograph_read import LineReading, SpanData, judge_reading, read_line
+from evpose.core.views.kymograph_confidence import DISAGREE
+from evpose.core.views.kymograph_line import candidate_lines
+from evpose.core.views.kymograph_read import LineReading, SpanData, judge_reading, read_line
 
 #: The silhouettes this far before and after the current time (µs) give an object's motion now.
 MOTION_PROBE_US = 10_000

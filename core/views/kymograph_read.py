@@ -1,6 +1,6 @@
 """Reading one kymograph line: the events near it binned by position along it and time, each shown object's
 edge track on it (its silhouette crossings at the track times, from the label maps) and the events' lag behind
-the tracks (:mod:`~evpose.core.session.kymograph_lag`), pooled over the objects."""
+the tracks (:mod:`~evpose.core.views.kymograph_lag`), pooled over the objects."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,9 +9,9 @@ from functools import cached_property
 import numpy as np
 
 from evpose.core.label.overlay import object_color
-from evpose.core.session.kymograph_confidence import NO_TRACK, judge
-from evpose.core.session.kymograph_lag import LagEstimate, LineEvents, combine, estimate_lag
-from evpose.core.session.kymograph_line import KymoLine, crossing_distances, labels_along
+from evpose.core.views.kymograph_confidence import NO_TRACK, judge
+from evpose.core.views.kymograph_lag import LagEstimate, LineEvents, combine, estimate_lag
+from evpose.core.views.kymograph_line import KymoLine, crossing_distances, labels_along
 
 #: Events within this distance across the line (px) are binned.
 HALF_WIDTH_PX = 1.0

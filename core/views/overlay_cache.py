@@ -1,8 +1,8 @@
 """Overlay results computed ahead of the user (stepping, playback), bounded in bytes.
 
-The overlay stage of a frame (:meth:`evpose.core.session.frames.FrameComputer.overlay_stages`:
+The overlay stage of a frame (:meth:`evpose.core.views.frame.FrameComputer.overlay_stages`:
 rasterised labels, masks, contours, boxes, scores) is the expensive part of a frame. While its worker
-is idle, :meth:`~evpose.core.session.frames.FrameComputer.prefetch_overlays` computes the next window
+is idle, :meth:`~evpose.core.views.frame.FrameComputer.prefetch_overlays` computes the next window
 in the direction and step of the user's motion and keeps it here; when the user gets there, the
 result is taken from here instead of being computed.
 
@@ -25,7 +25,7 @@ OVERLAY_CACHE_BYTES = 16 << 20
 
 
 def overlay_key(req) -> tuple:
-    """What the overlay stage of a :class:`~evpose.core.session.frames.FrameRequest` depends on."""
+    """What the overlay stage of a :class:`~evpose.core.views.frame.FrameRequest` depends on."""
     scene, view = req.scene, req.view
     w = view.window()
     corrections = json.dumps(scene.corrections.canonical(), sort_keys=True)

@@ -7,6 +7,9 @@ import numpy as np
 
 from evpose.core.data.scene import Scene
 
+#: the timeline's bin (event rate and speed), µs
+TIMELINE_BIN_US = 1000
+
 
 @dataclass
 class TimelineData:
@@ -22,7 +25,7 @@ class TimelineData:
     holes_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
-def timeline_data(scene: Scene, bin_us: int = 1000) -> TimelineData:
+def timeline_data(scene: Scene, bin_us: int = TIMELINE_BIN_US) -> TimelineData:
     """Event rate and robot speed, the latter mapped through the clock in effect so a wrong
     offset shows as a shift between the two curves."""
     t_bins, counts = scene.events.rate(bin_us)

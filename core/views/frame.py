@@ -1,4 +1,5 @@
-"""Frame and space-time computation for the views: pure functions of a :class:`FrameRequest`.
+"""The frame view's data: the window's event image, then its labels, overlays and scores; pure functions of a
+:class:`~evpose.core.views.request.FrameRequest`.
 
 A request is a snapshot (the scene sharing its data, with its own copy of the corrections, and the
 view state), so the app computes frames in worker threads while the user keeps editing; stale
@@ -30,11 +31,11 @@ from evpose.core.label.overlay import (
     mask_contours,
     object_color,
 )
-from evpose.core.session.overlay_cache import OverlayCache, overlay_key
-from evpose.core.session.spacetime_band import MergedFieldCache, events_band
-from evpose.core.session.spacetime_slices import SLICE_REQUEST, SliceCache, slice_key, slice_times
-from evpose.core.session.spacetime_surface import SurfaceCache, tubes_and_surfaces
-from evpose.core.session.view_state import ViewState
+from evpose.core.views.overlay_cache import OverlayCache, overlay_key
+from evpose.core.views.request import FrameRequest, WindowReader, run_stages
+
+__all__ = ["FrameData", "EventFrame", "FrameComputer", "FrameRequest", "run_stages", "inside_fraction",
+           "MAX_PREFETCH_STEP_WINDOWS"]
 
 
 @dataclass
@@ -54,36 +55,6 @@ class FrameData:
 
 
 @dataclass
-class SpaceTimeData:
-    """Events around the current time as an (x, y, t) cloud, and the objects' silhouette tubes.
-
-    ``edge_px`` and ``nearest`` (None when not computed) say how far each event is from the nearest shown
-    silhouette at its own time (px; inf: none within reach) and whose it is (index into ``object_colors``, the
-    scene's objects in order; -1: none): the view draws the events within its band in their object's colour."""
-
-    t_center_us: int
-    points: np.ndarray        # (N, 3) float32: x px, y px, t ms relative to t_center
-    polarity: np.ndarray      # (N,) uint8
-    n_total: int              # events in the span before decimation
-    tubes: list[tuple[str, tuple[int, int, int], list[np.ndarray]]]  # (name, colour, polylines (M, 3))
-    span_us: int = 0
-    edge_px: np.ndarray | None = None    # (N,) float32
-    nearest: np.ndarray | None = None    # (N,) int8
-    object_colors: tuple = ()            # (r, g, b) 0-255 per object index
-    surfaces: list = field(default_factory=list)  # (name, colour, vertices (V, 3) float32, triangles (F, 3) uint32)
-
-
-@dataclass(frozen=True)
-class FrameRequest:
-    """What to compute: a snapshot of the session (see :meth:`Session.request`); ``serial`` orders
-    the requests so a late result of an older one is dropped."""
-
-    scene: Scene       # a snapshot: shares data, owns a copy of the corrections
-    view: ViewState
-    serial: int = 0
-
-
-@dataclass
 class EventFrame:
     """The cheap first stage of a frame: the window's event image, shown before the overlays."""
 
@@ -98,12 +69,9 @@ class EventFrame:
 #: larger jumps (dragging the timeline) are not predicted.
 MAX_PREFETCH_STEP_WINDOWS = 4
 
-#: :meth:`FrameComputer.prefetch_spacetime` computes the slices of the span this many windows ahead.
-SPACETIME_PREFETCH_WINDOWS = 2
 
-
-class FrameComputer:
-    """Computes :class:`FrameData` and :class:`SpaceTimeData` from requests; caches the
+class FrameComputer(WindowReader):
+    """Computes :class:`FrameData` (and its cheap first stage, :class:`EventFrame`) from requests; caches the
     rasteriser and per-object geometry between calls (use one instance per worker thread).
 
     Parameters
@@ -116,21 +84,12 @@ class FrameComputer:
     """
 
     def __init__(self, cache=None, raster_threads: int = 1):
-        self.cache = cache
+        super().__init__(cache)
         self.raster_threads = raster_threads
         self._annotator: Annotator | None = None
         self._key = None
         self._score_params = None
         self._last_events = None   # (store, t0, t1, representation) of the last event stage
-        self._motion = None        # (store, t_us, direction, window_us) of the last request, for prefetch
-        #: silhouette slices of the space-time view by time and poses (byte-bounded: ``slice_cache.nbytes``)
-        self.slice_cache = SliceCache()
-        #: per slice, the objects' merged signed fields (events' band) and the joined contours (tube surfaces)
-        self.field_cache = MergedFieldCache()
-        self.surface_cache = SurfaceCache()
-        self._slice_annotator: Annotator | None = None
-        self._slice_scene_key = None
-        self._last_spacetime = None   # the last space-time request, for prefetch_spacetime
         self.overlays_ahead = OverlayCache()   # overlay results of prefetch_overlays
         self._last_overlay = None  # (request, step_us) of the last overlay stage, for prefetch_overlays
 
@@ -143,18 +102,6 @@ class FrameComputer:
             self._key = key
         self._annotator.scene = scene
         return self._annotator
-
-    def _window_events(self, scene: Scene, t0_us: int, t1_us: int) -> EventArray:
-        if self.cache is not None:
-            return self.cache.window(scene.events, t0_us, t1_us)
-        return scene.events.window(t0_us, t1_us)
-
-    def _note_motion(self, scene: Scene, t_us: int, window_us: int) -> None:
-        prev = self._motion
-        direction = 0
-        if prev is not None and prev[0] is scene.events:
-            direction = int(np.sign(t_us - prev[1])) or prev[2]
-        self._motion = (scene.events, int(t_us), direction, int(window_us))
 
     def frame(self, req: FrameRequest) -> FrameData:
         """The whole frame at once: the event stage and the overlay stage, one :class:`FrameData`."""
@@ -273,16 +220,6 @@ class FrameComputer:
             self.overlays_ahead.put(key, stop.value)
             return True
 
-    def prefetch(self, should_stop=None) -> int:
-        """Decode the event blocks ahead of the last request in its direction of motion (both ways before
-        any motion) into the cache: four windows and a block. Returns the blocks read (0 without a
-        cache). For a worker's idle time: ``should_stop()`` is checked between blocks."""
-        if self.cache is None or self._motion is None:
-            return 0
-        store, t_us, direction, window_us = self._motion
-        ahead_us = 4 * window_us + self.cache.block_us
-        return self.cache.prefetch(store, t_us, direction, ahead_us, should_stop)
-
     def _scores(self, scene: Scene, ev: EventArray, labels: WindowLabels) -> dict:
         """The window's alignment score per object (:mod:`core.score`, higher is better), from the
         label and depth images the frame already has: no second rasterisation."""
@@ -298,102 +235,6 @@ class FrameComputer:
             ev = ev[::int(np.ceil(len(ev) / p.max_events))]
         res = score_window(ev, labels.label_map, labels.depth_m, len(names), p)
         return {n: (float(r.score) if r.valid else None) for n, r in zip(names, res)}
-
-    def spacetime(self, req: FrameRequest) -> SpaceTimeData:
-        """The space-time data at once (:meth:`spacetime_stages` run to its end)."""
-        return run_stages(self.spacetime_stages(req))
-
-    def _slices_annotator(self, scene: Scene) -> Annotator:
-        """The annotator of the silhouette slices (label map only, :data:`SLICE_REQUEST`), for ``scene``."""
-        key = (id(scene.manifest),)
-        if self._slice_annotator is None or self._slice_scene_key != key:
-            self._slice_annotator = Annotator(scene, SLICE_REQUEST)
-            self._slice_scene_key = key
-            self.slice_cache.clear()
-            self.field_cache.clear()
-            self.surface_cache = SurfaceCache()
-        self._slice_annotator.scene = scene
-        return self._slice_annotator
-
-    def spacetime_stages(self, req: FrameRequest):
-        """The space-time data as a generator of checkpoints (yields None after the event read and after
-        each silhouette slice, so a worker drops a superseded request early) returning :class:`SpaceTimeData`.
-
-        Silhouette slices sit on a fixed grid of ``span / slices`` from the window grid's origin (so a step
-        of the current time reuses the slices it still covers) and are cached by their poses: a pose or
-        clock change recomputes them, a step recomputes only the new ones (see :attr:`slice_cache` and
-        :meth:`prefetch_spacetime`).
-        """
-        self._last_spacetime = req
-        scene, view = req.scene, req.view
-        span = int(view.spacetime_span_us)
-        t0 = int(view.t_us - span // 2)
-        ev = self._window_events(scene, t0, t0 + span)
-        self._note_motion(scene, view.t_us, view.window_us)
-        yield None
-        n = len(ev)
-        if n > view.spacetime_budget:
-            idx = np.linspace(0, n - 1, view.spacetime_budget).astype(np.int64)
-            ev = ev[idx]
-        pts = np.empty((len(ev), 3), np.float32)
-        pts[:, 0] = ev.x
-        pts[:, 1] = ev.y
-        pts[:, 2] = (ev.t - view.t_us).astype(np.float32) * 1e-3
-        times = slice_times(t0, span, view.spacetime_slices, view.grid_origin_us)
-        ann = self._slices_annotator(scene)
-        T_co, T_bc, valid = ann.poses(times)
-        slices = []
-        for i, t in enumerate(times):
-            if valid[i]:
-                slices.append((int(t), self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])))
-            yield None
-        names = scene.object_names
-        colors = tuple(object_color(k) for k in range(len(names)))
-        tubes, surfaces = tubes_and_surfaces(slices, names, view.hidden, colors, view.t_us, self.surface_cache)
-        edge_px, nearest = events_band(ev, slices, names, view.hidden, scene.camera.width, scene.camera.height,
-                                       self.field_cache)
-        return SpaceTimeData(int(view.t_us), pts, ev.p.copy(), n, tubes, span, edge_px, nearest, colors, surfaces)
-
-    def prefetch_spacetime(self, should_stop=lambda: False) -> int:
-        """Compute into :attr:`slice_cache` the silhouette slices that the span of the last space-time request
-        will need after up to :data:`SPACETIME_PREFETCH_WINDOWS` steps of one window in its direction of motion
-        (both ways before any motion), for an idle worker: ``should_stop()`` is checked before every slice.
-        Returns the slices computed."""
-        req = self._last_spacetime
-        if req is None or self._motion is None or self._motion[0] is not req.scene.events:
-            return 0
-        scene, view = req.scene, req.view
-        span, w = int(view.spacetime_span_us), int(view.window_us)
-        direction = self._motion[2]
-        ahead = [d * k * w for k in range(1, SPACETIME_PREFETCH_WINDOWS + 1) for d in ((direction,) if direction
-                                                                                       else (1, -1))]
-        t0 = int(view.t_us - span // 2)
-        times = np.unique(np.concatenate([slice_times(t0 + a, span, view.spacetime_slices, view.grid_origin_us)
-                                          for a in ahead]))
-        if direction < 0:
-            times = times[::-1]                  # the nearest first
-        ann = self._slices_annotator(scene)
-        T_co, T_bc, valid = ann.poses(times)
-        n = 0
-        for i, t in enumerate(times):
-            if should_stop():
-                break
-            if valid[i] and slice_key(int(t), T_co[i]) not in self.slice_cache:
-                value = self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])
-                self.field_cache.merged(value, scene.object_names, view.hidden, scene.camera.height,
-                                        scene.camera.width)
-                n += 1
-        return n
-
-
-def run_stages(gen):
-    """Run a staged computation (a generator of checkpoints / partial results) to its end; its return value."""
-    try:
-        while True:
-            next(gen)
-    except StopIteration as stop:
-        return stop.value
-
 
 def inside_fraction(ev: EventArray, label_map: np.ndarray, dilate_px: int = 2) -> float | None:
     """Share of the events that fall on any object's mask dilated by ``dilate_px`` pixels

@@ -5,7 +5,7 @@ A slice is the objects' visible silhouettes at one time: one z-buffered render o
 (:meth:`~evpose.core.label.annotate.Annotator.annotate` with a request for the label map only: no
 keypoints, depth or occlusion tests), each object's contours (:func:`~evpose.core.label.overlay.mask_contours`
 of its pixels in the label map, the frame view's visible mask) and its signed distance field
-(:func:`~evpose.core.session.spacetime_band.signed_field`, for the events' distance to the silhouettes). Slices sit on a fixed grid counted from the
+(:func:`~evpose.core.views.spacetime_band.signed_field`, for the events' distance to the silhouettes). Slices sit on a fixed grid counted from the
 window grid's origin (:func:`slice_times`), so when the span moves by a window most of them keep their time
 and, with unchanged poses, their cache key.
 """
@@ -19,7 +19,7 @@ from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 from evpose.core.label.overlay import mask_contours
 from evpose.core.label.windows import Window
-from evpose.core.session.spacetime_band import SliceValue, signed_field
+from evpose.core.views.spacetime_band import SliceValue, signed_field
 
 #: At most this many slices are kept (eight spans of the default twelve slices).
 SLICE_CACHE_SLICES = 96
@@ -52,7 +52,7 @@ def slice_key(t_us: int, T_cam_obj: np.ndarray) -> tuple:
 def compute_slice(ann: Annotator, t_us: int, T_cam_obj: np.ndarray, T_base_cam: np.ndarray) -> list:
     """``[(name, in_view, contours, field)]`` of every object at ``t_us`` with these poses: contours (list of
     (M, 2) pixel polylines) of the object's visible pixels in one z-buffered render (``[]`` out of view) and their
-    :class:`~evpose.core.session.spacetime_band.SignedField` (None when no pixel is visible)."""
+    :class:`~evpose.core.views.spacetime_band.SignedField` (None when no pixel is visible)."""
     lab = ann.annotate(Window(-1, int(t_us), int(t_us) + 1, int(t_us)), pose=(T_cam_obj, T_base_cam, True))
     out = SliceValue()
     for k, o in enumerate(lab.objects):
