@@ -12,7 +12,7 @@ Rules
 - On a window lower than :data:`COMPACT_BELOW_H` (a laptop screen) the review marks are a tab beside the space-time
   view instead of under it (:func:`compact`): the space-time view gets the left column's height (its canvas >= 250 px
   at 1366×768), the review list its own tab.
-- The timeline keeps its plots at a useful height (:data:`evpose.widgets.timeline_style.MIN_PLOT_H`); its dock has
+- The timeline keeps its plots at a useful height (:data:`evpose.widgets.timeline.style.MIN_PLOT_H`); its dock has
   no title bar (no close button beside "Fit": it is shown and hidden from View ▸ Panels).
 """
 from __future__ import annotations

@@ -28,7 +28,7 @@ from evpose.core.session.model import Session
 from evpose.core.session.view_state import REPRESENTATION_NAMES
 from evpose.core.signals import Change
 from evpose.widgets.correction_panel import CorrectionPanel
-from evpose.widgets.frame_view import DISPLAY_ONLY_FIELDS, FrameView
+from evpose.widgets.frame.view import DISPLAY_ONLY_FIELDS, FrameView
 from evpose.widgets.help_overlay import HelpOverlay
 from evpose.widgets.object_list import ObjectList
 from evpose.widgets.review_panel import ReviewPanel
@@ -230,8 +230,8 @@ class MainWindow(QtWidgets.QMainWindow):
         """Show ``session`` (replacing any open one)."""
         self._teardown_session()
         self.session = session
-        from evpose.widgets.spacetime_view import SpaceTimeView
-        from evpose.widgets.timeline import Timeline
+        from evpose.widgets.spacetime.view import SpaceTimeView
+        from evpose.widgets.timeline.view import Timeline
 
         self.frame_view = FrameView(session)
         frame_actions.attach(self, self.frame_view)      # key hints; hover text in the status bar
@@ -393,7 +393,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _add_kymograph_dock(self, session: Session) -> None:
         """The kymograph (x-t slice along a line drawn across an object edge): a tab beside the space-time view,
         closed until asked for (the space-time view's "Kymograph" button, View > Panels); computed while in sight."""
-        from evpose.widgets.kymograph_view import KymographView
+        from evpose.widgets.kymograph.view import KymographView
 
         self.kymograph = KymographView(session)
         self.kymograph.lineChanged.connect(self.request_kymograph)

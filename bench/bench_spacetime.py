@@ -164,7 +164,7 @@ def ycb_child(steps: int) -> dict:
     from evpose.core.session.model import Session
 
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     session = Session.open(ensure_ycb_scene())
     session.scene.trajectory            # the app's timeline loads it on the session's scene; requests share it
@@ -313,7 +313,7 @@ def main(argv=None) -> int:
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
     from vispy import scene as vscene
 
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     W, H = (int(v) for v in args.size.lower().split("x"))
     R = args.repeats

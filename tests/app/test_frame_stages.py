@@ -9,7 +9,7 @@ import pytest
 
 from evpose.core.views.frame import FrameComputer
 from evpose.core.views.spacetime import SpaceTimeComputer
-from evpose.widgets.frame_view import STALE_OVERLAY_OPACITY
+from evpose.widgets.frame.view import STALE_OVERLAY_OPACITY
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@ from PySide6 import QtWidgets
 
 from evpose.core.views.kymograph_confidence import REASONS
 from evpose.core.views.kymograph_lag import MAX_LAG_MS, LagEstimate
-from evpose.widgets.kymograph_view import lag_text
+from evpose.widgets.kymograph.view import lag_text
 
 #: Room a desktop takes from a 1366x768 screen (a panel and the title bar), as in test_layout.py.
 LAPTOP = (1366, 768 - 70)

@@ -18,13 +18,13 @@ def calls(monkeypatch):
     """``(view class, change)`` of every call of a view's session slot (patched on the classes)."""
     from evpose.app.main_window import MainWindow
     from evpose.widgets.correction_panel import CorrectionPanel
-    from evpose.widgets.frame_toolbar import FrameToolbar
-    from evpose.widgets.frame_view import FrameView
-    from evpose.widgets.kymograph_view import KymographView
+    from evpose.widgets.frame.toolbar import FrameToolbar
+    from evpose.widgets.frame.view import FrameView
+    from evpose.widgets.kymograph.view import KymographView
     from evpose.widgets.object_list import ObjectList
     from evpose.widgets.review_panel import ReviewPanel
-    from evpose.widgets.spacetime_view import SpaceTimeView
-    from evpose.widgets.timeline import Timeline
+    from evpose.widgets.spacetime.view import SpaceTimeView
+    from evpose.widgets.timeline.view import Timeline
 
     seen = []
     for cls in (CorrectionPanel, ObjectList, ReviewPanel, SpaceTimeView, KymographView, Timeline, FrameView,

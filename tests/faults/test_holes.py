@@ -238,7 +238,7 @@ def test_sync_and_refine_use_no_window_and_no_bin_in_a_hole(holed):
 def test_timeline_shades_the_holes(holed, qtbot):
     from evpose.core.session.model import Session
     from evpose.core.views.timeline import timeline_data
-    from evpose.widgets.timeline import Timeline
+    from evpose.widgets.timeline.view import Timeline
 
     holed_dir, (a, b) = holed
     session = Session.open(holed_dir)

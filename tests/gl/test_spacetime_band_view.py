@@ -8,12 +8,12 @@ import pytest
 from test_spacetime_view import H_CANVAS, W_CANVAS, colour_mask, reddish, render
 
 from evpose.core.views.spacetime import SpaceTimeData
-from evpose.widgets.spacetime_style import BAND_ALPHA
+from evpose.widgets.spacetime.style import BAND_ALPHA
 
 
 @pytest.fixture
 def view(qtbot, session):
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     w = SpaceTimeView(session)
     qtbot.addWidget(w)

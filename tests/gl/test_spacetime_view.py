@@ -17,7 +17,7 @@ W_CANVAS, H_CANVAS = 640, 480
 
 @pytest.fixture
 def view(qtbot, session):
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     w = SpaceTimeView(session)
     qtbot.addWidget(w)
@@ -221,7 +221,7 @@ def test_presets_and_reset_render(qtbot, view, session):
 
 
 def test_close_unsubscribes(qtbot, session):
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     n0 = len(session.changed)
     w = SpaceTimeView(session)
@@ -238,7 +238,7 @@ def test_lean_points_draw_the_same_pixels_as_stock_markers(qtbot, session, monke
     """The lean point visual (own shaders, 16 B a point) renders exactly what vispy's ``Markers`` renders for
     the same data (2 px discs, no edge, no antialiasing), in the perspective and an orthographic preset,
     with and without silhouette tubes."""
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     data = SpaceTimeComputer().spacetime(session.request())
     assert data.tubes and len(data.points) > 1000
@@ -270,7 +270,7 @@ def test_coarse_subset_while_the_camera_moves(qtbot, view, session):
     """Mouse press on the canvas draws a time-uniform prefix of the points; release draws all again."""
     from PySide6 import QtCore
 
-    from evpose.widgets.spacetime_points import LOD_POINTS, draw_order
+    from evpose.widgets.spacetime.points import LOD_POINTS, draw_order
 
     d = sheet(session, 1, n=200_000, seed=3)
     view.set_data(d)
@@ -295,7 +295,7 @@ def test_deleted_with_its_parent_ignores_late_data(qtbot, session):
     """Inside a dock deleted by the app: the session forgets the view and a late worker result is ignored."""
     from PySide6 import QtWidgets
 
-    from evpose.widgets.spacetime_view import SpaceTimeView
+    from evpose.widgets.spacetime.view import SpaceTimeView
 
     n0 = len(session.changed)
     parent = QtWidgets.QWidget()

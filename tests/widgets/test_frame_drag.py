@@ -7,7 +7,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.data.geometry import apply_T, pose_error
 from evpose.core.views.frame import FrameComputer
-from evpose.widgets.frame_view import FrameView
+from evpose.widgets.frame.view import FrameView
 
 
 @pytest.fixture

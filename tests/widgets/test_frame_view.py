@@ -3,7 +3,7 @@ import pytest
 from PySide6 import QtCore, QtWidgets
 
 from evpose.core.views.frame import FrameComputer
-from evpose.widgets.frame_view import FrameView
+from evpose.widgets.frame.view import FrameView
 
 
 @pytest.fixture
@@ -160,7 +160,7 @@ def test_sensor_border_is_drawn_and_overlays_outside_it_are_faded(view, session,
 
 
 def test_representation_indicator_and_legend_follow_the_session(view, session):
-    from evpose.widgets.frame_legend import legend_text
+    from evpose.widgets.frame.legend import legend_text
 
     bar = view.toolbar
     assert bar.rep_combo.currentData() == "polarity"

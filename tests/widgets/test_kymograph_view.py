@@ -24,7 +24,7 @@ def kymo_session(tmp_path_factory):
 
 @pytest.fixture
 def view(qtbot, kymo_session):
-    from evpose.widgets.kymograph_view import KymographView
+    from evpose.widgets.kymograph.view import KymographView
 
     w = KymographView(kymo_session)
     qtbot.addWidget(w)

@@ -5,8 +5,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from evpose.widgets.spacetime_cage import nice_step
-from evpose.widgets.spacetime_camera import (
+from evpose.widgets.spacetime.cage import nice_step
+from evpose.widgets.spacetime.camera import (
     LOG_SCALE_MAX,
     LOG_SCALE_MIN,
     SLIDER_STEPS,
@@ -16,9 +16,9 @@ from evpose.widgets.spacetime_camera import (
     slider_position,
     slider_scale,
 )
-from evpose.widgets.spacetime_legend import legend_entries, legend_html
-from evpose.widgets.spacetime_points import LOD_POINTS, draw_order, stride_for
-from evpose.widgets.spacetime_tubes import tube_segments
+from evpose.widgets.spacetime.legend import legend_entries, legend_html
+from evpose.widgets.spacetime.points import LOD_POINTS, draw_order, stride_for
+from evpose.widgets.spacetime.tubes import tube_segments
 
 
 def framed(name, W=200.0, H=100.0, D=400.0, aspect=1.0):
@@ -109,7 +109,7 @@ def test_legend_in_band_mode_names_the_band_and_the_dimmed_rest():
 def test_band_split_of_points():
     from types import SimpleNamespace
 
-    from evpose.widgets.spacetime_band import BandSplitter, band_mask, band_palette
+    from evpose.widgets.spacetime.band import BandSplitter, band_mask, band_palette
 
     edge = np.array([0.5, 2.0, 3.5, np.inf, 1.0], np.float32)
     nearest = np.array([0, 1, 1, -1, 2], np.int8)

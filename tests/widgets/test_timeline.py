@@ -7,9 +7,9 @@ import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.core.views.timeline import TimelineData
-from evpose.widgets.timeline import Timeline
-from evpose.widgets.timeline_scrub import SCRUB_INTERVAL_MS
-from evpose.widgets.timeline_style import STATUS_COLORS
+from evpose.widgets.timeline.view import Timeline
+from evpose.widgets.timeline.scrub import SCRUB_INTERVAL_MS
+from evpose.widgets.timeline.style import STATUS_COLORS
 
 LEFT = QtCore.Qt.LeftButton
 
@@ -311,7 +311,7 @@ def test_scores_curves_and_worst_window(tl, session, qtbot):
 
 
 def test_low_evidence_windows_are_drawn_apart_and_never_the_worst(tl, session, qtbot):
-    from evpose.widgets.timeline_style import LOW_EVIDENCE_COLOR
+    from evpose.widgets.timeline.style import LOW_EVIDENCE_COLOR
 
     t0 = session.time_range[0]
     t_s = 0.005 + 0.01 * np.arange(80)
@@ -356,7 +356,7 @@ def test_low_evidence_windows_are_drawn_apart_and_never_the_worst(tl, session, q
 
 
 def test_a_stale_score_row_is_dimmed_with_a_label(tl, session, qtbot):
-    from evpose.widgets.timeline_evidence import STALE_ALPHA
+    from evpose.widgets.timeline.evidence import STALE_ALPHA
 
     t_s = 0.005 + 0.01 * np.arange(80)
     tl.set_scores_stale(True)

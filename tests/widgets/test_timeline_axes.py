@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from evpose.core.views.timeline import TimelineData
-from evpose.widgets.timeline import Timeline
-from evpose.widgets.timeline_plot import robust_range
+from evpose.widgets.timeline.view import Timeline
+from evpose.widgets.timeline.plot import robust_range
 
 
 @pytest.fixture

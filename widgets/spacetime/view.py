@@ -14,13 +14,13 @@ subscribes to its changes (view options, object visibility) and draws the displa
 over with :meth:`SpaceTimeView.set_data`; the widget never imports ``app``.
 
 Its parts, one module each: the scene layout, camera presets and time scale
-(:mod:`~evpose.widgets.spacetime_camera`); the event points in two layers (the rest and the band, split by
-:mod:`~evpose.widgets.spacetime_band`), thinned to the point budget and uploaded only when changed
-(:mod:`~evpose.widgets.spacetime_points`, drawing with the lean ``Markers`` visual of
-:mod:`~evpose.widgets.spacetime_cloud`); the span's cage and the current window's slab
-(:mod:`~evpose.widgets.spacetime_cage`); the tubes and their skins (:mod:`~evpose.widgets.spacetime_tubes`); the
-legend above the canvas (:mod:`~evpose.widgets.spacetime_legend`); the controls
-(:mod:`~evpose.widgets.spacetime_controls`).
+(:mod:`~evpose.widgets.spacetime.camera`); the event points in two layers (the rest and the band, split by
+:mod:`~evpose.widgets.spacetime.band`), thinned to the point budget and uploaded only when changed
+(:mod:`~evpose.widgets.spacetime.points`, drawing with the lean ``Markers`` visual of
+:mod:`~evpose.widgets.spacetime.cloud`); the span's cage and the current window's slab
+(:mod:`~evpose.widgets.spacetime.cage`); the tubes and their skins (:mod:`~evpose.widgets.spacetime.tubes`); the
+legend above the canvas (:mod:`~evpose.widgets.spacetime.legend`); the controls
+(:mod:`~evpose.widgets.spacetime.controls`).
 
 Controls: reset / front / side / top camera presets (``TurntableCamera``: drag orbits, wheel zooms,
 shift-drag pans), the time-scale slider, the span (ms) and point-budget spin boxes (both written to
@@ -36,15 +36,15 @@ from PySide6 import QtCore, QtWidgets
 
 from evpose.core.signals import Change, OBJECTS, VIEW
 from evpose.widgets.binding import connect_view
-from evpose.widgets.spacetime_band import BandSplitter, band_palette, rest_palette
-from evpose.widgets.spacetime_cage import SpanCage, WindowSlab
-from evpose.widgets.spacetime_camera import OBLIQUE_FOV, TimeScale, frame_preset
-from evpose.widgets.spacetime_cloud import use_vispy
-from evpose.widgets.spacetime_controls import SpaceTimeControls
-from evpose.widgets.spacetime_legend import Legend
-from evpose.widgets.spacetime_points import PointLayer, stride_for
-from evpose.widgets.spacetime_style import BACKGROUND, ORDER_BAND_POINTS
-from evpose.widgets.spacetime_tubes import TubeLayer
+from evpose.widgets.spacetime.band import BandSplitter, band_palette, rest_palette
+from evpose.widgets.spacetime.cage import SpanCage, WindowSlab
+from evpose.widgets.spacetime.camera import OBLIQUE_FOV, TimeScale, frame_preset
+from evpose.widgets.spacetime.cloud import use_vispy
+from evpose.widgets.spacetime.controls import SpaceTimeControls
+from evpose.widgets.spacetime.legend import Legend
+from evpose.widgets.spacetime.points import PointLayer, stride_for
+from evpose.widgets.spacetime.style import BACKGROUND, ORDER_BAND_POINTS
+from evpose.widgets.spacetime.tubes import TubeLayer
 
 #: After a wheel step, the coarse subset is drawn for this long (ms) before all points again.
 LOD_IDLE_MS = 250

@@ -14,8 +14,8 @@ outline that lags the events is read as "updating", not as a misalignment.
 
 Display options of the session's view state apply at once, without recomputing the frame: contrast and
 opacity of the event image, opacity of the masks, the selected object only, outlines only
-(:class:`~evpose.widgets.frame_toolbar.FrameToolbar` sets them). Objects are clicked to select them and
-dragged to correct their pose (:mod:`evpose.widgets.frame_drag`).
+(:class:`~evpose.widgets.frame.toolbar.FrameToolbar` sets them). Objects are clicked to select them and
+dragged to correct their pose (:mod:`evpose.widgets.frame.drag`).
 """
 from __future__ import annotations
 
@@ -35,8 +35,8 @@ from evpose.core.views.frame import EventFrame, FrameData
 from evpose.core.session.model import Session
 from evpose.core.signals import Change, OBJECTS, VIEW
 from evpose.widgets.binding import connect_view
-from evpose.widgets.frame_drag import DRAG_HELP, FrameViewBox, pixel_of
-from evpose.widgets.frame_toolbar import FrameToolbar
+from evpose.widgets.frame.drag import DRAG_HELP, FrameViewBox, pixel_of
+from evpose.widgets.frame.toolbar import FrameToolbar
 from evpose.widgets.labels import Readout
 from evpose.widgets.plot_data import polylines_xy, segments_xy
 

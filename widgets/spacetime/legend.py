@@ -11,7 +11,7 @@ import html
 
 from PySide6 import QtCore, QtWidgets
 
-from evpose.widgets.spacetime_style import DIM_ON_RGBA, OFF_RGBA, ON_RGBA, SLAB_EDGE_RGBA
+from evpose.widgets.spacetime.style import DIM_ON_RGBA, OFF_RGBA, ON_RGBA, SLAB_EDGE_RGBA
 
 #: Colour of the "events near a silhouette" entry (the objects' own colours follow in their entries).
 BAND_ENTRY_RGB = (0.15, 0.15, 0.15)

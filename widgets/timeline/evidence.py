@@ -12,8 +12,8 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore
 
-from evpose.widgets.timeline_marks import merge_runs
-from evpose.widgets.timeline_style import LOW_EVIDENCE_COLOR
+from evpose.widgets.timeline.marks import merge_runs
+from evpose.widgets.timeline.style import LOW_EVIDENCE_COLOR
 
 __all__ = ["STALE_TEXT", "StaleLabel", "low_evidence_bands", "low_evidence_points", "no_evidence_windows"]
 

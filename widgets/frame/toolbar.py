@@ -16,7 +16,7 @@ from evpose.core.session.model import Session
 from evpose.core.session.view_state import REPRESENTATION_NAMES
 from evpose.core.signals import Change, VIEW
 from evpose.widgets.binding import connect_view
-from evpose.widgets.frame_legend import LEGENDS, legend_html, legend_text, swatch_icon
+from evpose.widgets.frame.legend import LEGENDS, legend_html, legend_text, swatch_icon
 
 MIN_WINDOW_EVENTS = 100
 MAX_WINDOW_EVENTS = 10_000_000

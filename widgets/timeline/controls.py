@@ -6,7 +6,7 @@ from __future__ import annotations
 from PySide6 import QtCore, QtWidgets
 
 from evpose.widgets.labels import Readout
-from evpose.widgets.timeline_style import legend_html
+from evpose.widgets.timeline.style import legend_html
 
 __all__ = ["ControlBar", "PLAY_SPEEDS"]
 

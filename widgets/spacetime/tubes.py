@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.widgets.spacetime_style import (
+from evpose.widgets.spacetime.style import (
     ORDER_SURFACES,
     ORDER_TUBE_CASING,
     ORDER_TUBES,

@@ -9,7 +9,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtGui
 
-from evpose.widgets.timeline_style import (
+from evpose.widgets.timeline.style import (
     ANGULAR_COLOR,
     HOLE_COLOR,
     LEFT_AXIS_W,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.widgets.spacetime_style import OFF_RGBA, ON_RGBA
+from evpose.widgets.spacetime.style import OFF_RGBA, ON_RGBA
 
 #: Colour classes a layer can tell apart (e.g. objects; more wrap around).
 PALETTE_SIZE = 16

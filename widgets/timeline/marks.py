@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import pyqtgraph as pg
 from PySide6 import QtCore
 
-from evpose.widgets.timeline_style import STATUS_COLORS
+from evpose.widgets.timeline.style import STATUS_COLORS
 
 __all__ = ["MarkRegion", "merge_runs", "mark_regions", "stale_key"]
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evpose.widgets.spacetime_cloud import PALETTE_SIZE
-from evpose.widgets.spacetime_style import BAND_ALPHA, DIM_OFF_RGBA, DIM_ON_RGBA, OFF_RGBA, ON_RGBA
+from evpose.widgets.spacetime.cloud import PALETTE_SIZE
+from evpose.widgets.spacetime.style import BAND_ALPHA, DIM_OFF_RGBA, DIM_ON_RGBA, OFF_RGBA, ON_RGBA
 
 
 @dataclass

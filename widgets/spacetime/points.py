@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evpose.widgets.spacetime_cloud import event_cloud_node_class, pack_rgb
-from evpose.widgets.spacetime_style import OFF_RGBA, ON_RGBA, ORDER_POINTS, POINT_ANTIALIAS, POINT_SIZE_PX
+from evpose.widgets.spacetime.cloud import event_cloud_node_class, pack_rgb
+from evpose.widgets.spacetime.style import OFF_RGBA, ON_RGBA, ORDER_POINTS, POINT_ANTIALIAS, POINT_SIZE_PX
 
 #: Upload counter names of a layer: (positions, colour indices).
 DEFAULT_COUNTERS = ("points", "polarity")

@@ -6,7 +6,7 @@ The widget is a view of a :class:`evpose.core.session.model.Session`: it draws t
 :class:`evpose.core.views.kymograph.KymographData` that core computes (``KymographComputer``) and that its owner
 hands over with :meth:`KymographView.set_data`; it tells the owner when the line changes (``lineChanged``) and
 writes the span to the session's view state. Left: the current window's events and the silhouettes, where a
-left-drag draws the line (:mod:`~evpose.widgets.kymograph_line`); right: position along the line (x) against time
+left-drag draws the line (:mod:`~evpose.widgets.kymograph.line`); right: position along the line (x) against time
 (y, later up), events dark (ON warm, OFF cool), each object's edge track in its colour, the track moved by the
 measured lag dashed, and the current time as a grey line.
 """
@@ -19,7 +19,7 @@ from PySide6 import QtCore, QtWidgets
 from evpose.core.views.kymograph_confidence import REASONS
 from evpose.core.signals import Change, VIEW
 from evpose.widgets.binding import connect_view
-from evpose.widgets.kymograph_line import FramePreview
+from evpose.widgets.kymograph.line import FramePreview
 from evpose.widgets.labels import Readout
 from evpose.widgets.plot_data import segments_xy
 

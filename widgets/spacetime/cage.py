@@ -6,7 +6,7 @@ The texts follow the camera preset (:meth:`SpanCage.set_preset`): an axis seen e
 the margin the presets leave around the box.
 
 Coordinates are data coordinates ``(x px, y px, t ms)`` relative to the data's centre time; the parent
-node's transform maps them to the scene (:mod:`evpose.widgets.spacetime_camera`).
+node's transform maps them to the scene (:mod:`evpose.widgets.spacetime.camera`).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from evpose.widgets.spacetime_style import (
+from evpose.widgets.spacetime.style import (
     CAGE_RGBA,
     ORDER_CAGE,
     ORDER_SLAB,

@@ -8,17 +8,17 @@ time offset shows as a horizontal shift between the event-rate and speed curves;
 Interaction
 -----------
 - left click / drag on a plot, or drag the black cursor line: scrub (``session.set_time``; throttled to
-  :data:`~evpose.widgets.timeline_scrub.SCRUB_INTERVAL_MS` while dragging, the cursor itself follows the mouse at once);
+  :data:`~evpose.widgets.timeline.scrub.SCRUB_INTERVAL_MS` while dragging, the cursor itself follows the mouse at once);
 - wheel / right drag: zoom in time; Shift+left or middle drag: pan; "Fit" shows the whole sequence;
 - play / pause with a selectable speed (fraction of real time), step one window back / forward;
 - Space toggles play while the timeline has keyboard focus. Other keys (arrows...) are left to the main
   window: no child takes keyboard focus.
 
-The pieces live beside this module: the control row (:mod:`~evpose.widgets.timeline_controls`), the main
-row of curves (:mod:`~evpose.widgets.timeline_plot`), the review marks (:mod:`~evpose.widgets.timeline_marks`),
-the score row (:mod:`~evpose.widgets.timeline_scores`) and the shared colours and items
-(:mod:`~evpose.widgets.timeline_style`); playback and scrubbing are :mod:`~evpose.widgets.timeline_playback`
-and :mod:`~evpose.widgets.timeline_scrub`.
+The pieces live beside this module: the control row (:mod:`~evpose.widgets.timeline.controls`), the main
+row of curves (:mod:`~evpose.widgets.timeline.plot`), the review marks (:mod:`~evpose.widgets.timeline.marks`),
+the score row (:mod:`~evpose.widgets.timeline.scores`) and the shared colours and items
+(:mod:`~evpose.widgets.timeline.style`); playback and scrubbing are :mod:`~evpose.widgets.timeline.playback`
+and :mod:`~evpose.widgets.timeline.scrub`.
 """
 from __future__ import annotations
 
@@ -31,13 +31,13 @@ from evpose.core.session.model import Session
 from evpose.core.views.timeline import TIMELINE_BIN_US as BIN_US, TimelineData, timeline_data
 from evpose.core.signals import Change, DOCUMENT, OBJECTS, TIME, VIEW
 from evpose.widgets.binding import connect_view
-from evpose.widgets.timeline_controls import ControlBar
-from evpose.widgets.timeline_marks import MarkRegion, mark_regions, stale_key
-from evpose.widgets.timeline_playback import Playback
-from evpose.widgets.timeline_plot import RatePlot
-from evpose.widgets.timeline_scores import ScoreRow
-from evpose.widgets.timeline_scrub import Scrubber
-from evpose.widgets.timeline_style import MIN_PLOT_H, MIN_SCORE_H
+from evpose.widgets.timeline.controls import ControlBar
+from evpose.widgets.timeline.marks import MarkRegion, mark_regions, stale_key
+from evpose.widgets.timeline.playback import Playback
+from evpose.widgets.timeline.plot import RatePlot
+from evpose.widgets.timeline.scores import ScoreRow
+from evpose.widgets.timeline.scrub import Scrubber
+from evpose.widgets.timeline.style import MIN_PLOT_H, MIN_SCORE_H
 
 MIN_X_RANGE_S = 0.005            # deepest zoom: 5 ms across the plot
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from PySide6 import QtCore, QtWidgets
 
 from evpose.widgets.labels import Readout
-from evpose.widgets.spacetime_camera import SLIDER_STEPS
+from evpose.widgets.spacetime.camera import SLIDER_STEPS
 
 BUDGET_RANGE = (1_000, 5_000_000)
 SPAN_RANGE_MS = (1, 10_000)

@@ -5,13 +5,13 @@ row (never over the scores), and the y range holds every score, values above 1 i
 
 Low-evidence windows (their scores say little about the pose) are drawn apart, as grey rings, and are never
 the worst; a stale row (computed before the clock or a pose changed) is dimmed with a label
-(:mod:`~evpose.widgets.timeline_evidence`)."""
+(:mod:`~evpose.widgets.timeline.evidence`)."""
 from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
 
-from evpose.widgets.timeline_evidence import (
+from evpose.widgets.timeline.evidence import (
     STALE_ALPHA,
     STALE_TEXT,
     StaleLabel,
@@ -19,7 +19,7 @@ from evpose.widgets.timeline_evidence import (
     low_evidence_points,
     no_evidence_windows,
 )
-from evpose.widgets.timeline_style import (
+from evpose.widgets.timeline.style import (
     LEFT_AXIS_W,
     LOW_EVIDENCE_COLOR,
     RIGHT_AXIS_W,

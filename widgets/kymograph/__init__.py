@@ -1,0 +1,1 @@
+"""The kymograph widgets."""
