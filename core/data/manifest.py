@@ -139,8 +139,10 @@ class SceneManifest:
             "clock": {"offset_us": int(self.clock_offset_us), "skew_ppm": float(self.clock_skew_ppm)},
             "objects": objs,
         }
-        if traj is None:              # an event-only scene: no [trajectory] table, no [[objects]]
+        if traj is None:              # an event-only scene: no [trajectory] table
             del doc["trajectory"]
+        if not objs:                  # no `objects = []` line: [[objects]] tables can be appended by hand
+            del doc["objects"]
         return doc
 
     def save(self, path=None) -> Path:
