@@ -259,3 +259,10 @@ def test_set_trajectory_resumes_after_a_kill_between_its_two_writes(eo_scene, sr
     assert (sc / "trajectory.csv").is_file() and (sc / "scene.toml").read_bytes() == toml0     # killed in between
     assert main(["scene", "set-trajectory", str(sc), str(src.dir / "trajectory.csv"), "-q"]) == 0
     assert load_manifest(sc).has_trajectory
+
+
+def test_dataset_info_lists_an_event_only_scene(eo_scene, tmp_path, capsys):
+    scene_copy(eo_scene, tmp_path / "ds" / "eo")
+    assert main(["dataset", "info", str(tmp_path / "ds"), "--workers", "1", "-q"]) == 0
+    row = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("eo "))
+    assert row.split()[-1:] == ["only"] and "events only" in row, row
