@@ -96,7 +96,7 @@ def cmd_info(args) -> int:
     return _finish(args, result, _table(result, [
         ("events", lambda d: f"{d['n_events']:,}"), ("duration_s", lambda d: f"{d['duration_s']:.2f}"),
         ("objects", lambda d: ",".join(d["objects"])), ("offset_us", lambda d: str(d["clock"]["offset_us"])),
-        ("holes", lambda d: str(len(d["trajectory"]["holes"])))]))
+        ("holes", lambda d: "events only" if d["trajectory"] is None else str(len(d["trajectory"]["holes"])))]))
 
 
 @command("dataset sync")

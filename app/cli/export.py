@@ -63,6 +63,8 @@ def summary_text(s) -> str:
              f"(skipped), {s.unlabeled} unlabeled, {s.filtered_unverified} not verified (left out) of "
              f"{s.windows_total} windows in {s.runtime_s:.1f} s ({rate:.1f} windows/s, "
              f"{s.jobs} job{'s' * (s.jobs > 1)})"]
+    if s.events_only:
+        lines.append("  events only (no trajectory, no objects): event frames without labels")
     if s.review_marked:
         exported = s.review_marked - s.review_unused
         line = f"  verified marks touch {s.review_marked} window(s): {exported} exported"

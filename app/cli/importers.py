@@ -24,17 +24,19 @@ FORMAT_NAMES = ("epose-bag", "epose-export", "dsec", "rpg", "ycbev", "npz", "bop
 _EPILOG = """formats and their sources:
   epose-bag     REC.bag | ROS2_BAG_DIR | REC.mcap | REC.db3  [--assets DIR --scene S --sequence Q | --camera --objects]
   epose-export  FOLDER_WITH_NNNN_data.mat       [--assets DIR --scene S] [--objects] [--classes] [--one-based]
-  dsec          events.h5 traj.csv|txt cam_to_cam.yaml (or a DSEC sequence folder) [--events-mode]
-  rpg           FOLDER (events.txt groundtruth.txt calib.txt) or the files
+  dsec          events.h5 [traj.csv|txt] cam_to_cam.yaml (or a DSEC sequence folder) [--events-mode]
+  rpg           FOLDER (events.txt [groundtruth.txt] calib.txt) or the files
   ycbev         SEQUENCE_FOLDER (scene_gt.json) [EVENTS.int32.zst] [calib_prophesee.json] [--models DIR]
-  npz           REC.npz (x y t p + t_us position quaternion | T_base_cam [+ K dist width height])
+  npz           REC.npz (x y t p [+ t_us position quaternion | T_base_cam] [+ K dist width height])
   bop           BOP_DIR | BOP_DIR/SPLIT --scene ID (or the scene folder) [--models DIR] [--frame-us N]:
                 event frames read back as events; timing from scene_times.json when present
   aedat4        REC.aedat4 [TRAJECTORY [CALIB]]  (sensor size from the file; its pose stream without TRAJECTORY)
   prophesee     REC.raw|REC.dat [TRAJECTORY [CALIB]]  (EVT 2.0 / EVT 3.0 / DAT; sensor size from the header)
-  ros-events    REC.bag | ROS2_BAG_DIR  TRAJECTORY [CALIB] [--events-topic T]  (event_camera_msgs/EventPacket of
+  ros-events    REC.bag | ROS2_BAG_DIR  [TRAJECTORY [CALIB]] [--events-topic T]  (event_camera_msgs/EventPacket of
                 the ROS drivers, encodings evt3 and mono; clock prior from the first packet's stamp)
 --objects takes name=mesh[:T_base_obj.json],... (T is a 4x4 JSON list, metres).
+Without a trajectory (aedat4, prophesee, ros-events, npz, dsec, rpg) the scene is event-only: events and event
+frames, no objects, no labels (calibration via --camera); evpose scene set-trajectory adds one later.
 Every import writes import_report.json into the scene: what was assumed, repaired, dropped."""
 
 
@@ -131,8 +133,9 @@ def options_from_args(args):
 
 
 def summary_text(summary: dict) -> str:
-    return (f"wrote {summary['scene']}: {summary.get('n_events'):,} events, {summary['n_poses']} poses, "
-            f"objects: {', '.join(summary['objects']) or '(none)'} in {summary['runtime_s']:.2f} s "
+    what = (f"{summary['n_poses']} poses, objects: {', '.join(summary['objects']) or '(none)'}"
+            if not summary.get("events_only") else "events only (no trajectory, no objects)")
+    return (f"wrote {summary['scene']}: {summary.get('n_events'):,} events, {what} in {summary['runtime_s']:.2f} s "
             f"({len(summary['assumptions'])} assumptions, {len(summary['repairs'])} repairs, "
             f"{len(summary['warnings'])} warnings: see {summary['report']})")
 

@@ -19,6 +19,14 @@ def info_text(info: dict) -> str:
         f"events     {info['n_events']:,} over {info['duration_s']:.3f} s  ({info['event_rate_hz'] / 1e6:.3f} M ev/s)",
         f"           t0 {info['t0_us']} us, t1 {info['t1_us']} us (event clock)",
         f"camera     {info['camera']['width']}x{info['camera']['height']}, dist {info['camera']['dist']}",
+    ]
+    if tr is None:
+        lines += [f"labels     {info['labels']} (evpose scene set-trajectory SCENE TRAJECTORY adds a trajectory)",
+                  f"clock      offset {c['offset_us']} us, skew {c['skew_ppm']} ppm in effect "
+                  f"(prior {c['prior_offset_us']} us, {c['prior_skew_ppm']} ppm)"]
+        lines += [f"warning    {w}" for w in info["warnings"]]
+        return "\n".join(lines)
+    lines += [
         f"trajectory {info['n_poses']} poses of '{tr['frame']}' at {tr['rate_hz']:.1f} Hz,"
         f" {tr['t0_us']}..{tr['t1_us']} us (pose clock)",
         f"clock      offset {c['offset_us']} us, skew {c['skew_ppm']} ppm in effect "

@@ -20,6 +20,7 @@ from evpose.app.cli.export import add_export_parser
 from evpose.app.cli.gui import add_demo_parser, add_gui_parser
 from evpose.app.cli.importers import add_import_parser
 from evpose.app.cli.info import add_info_parser
+from evpose.app.cli.scene import add_scene_parser
 from evpose.app.cli.synth import add_synth_parser
 
 __all__ = ["build_parser", "main"]
@@ -47,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_gui_parser(sub)
     add_export_parser(sub)
     add_import_parser(sub)
+    add_scene_parser(sub)
     add_align_parsers(sub)
     add_dataset_parser(sub)
     return p

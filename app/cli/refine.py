@@ -105,6 +105,9 @@ def cmd_refine(args) -> int:
     from evpose.core.data.scene import Scene
 
     scene = Scene.open(args.scene)
+    if not scene.has_poses:
+        scene.close()
+        scene.require_poses("pose refinement")
     out: dict = {"objects": {}}
     lines: list[str] = []
     try:

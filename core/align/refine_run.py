@@ -56,6 +56,8 @@ def run_refine_joint(scene, opts: JointRunOptions, *, progress=None, cancel=None
                                             mounting_suspected)
     from evpose.core.document.history import History
 
+    if not getattr(scene, "has_poses", True):
+        scene.require_poses("pose refinement")
     params = JointParams(clock=opts.clock, objects=opts.objects, hand_eye=opts.hand_eye, n_windows=opts.windows)
     run = JointRun()
     check = opts.clock and not opts.hand_eye and opts.objects is None

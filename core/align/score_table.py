@@ -187,6 +187,8 @@ def score_windows(scene, windows=None, objects=None, *, window_us: int = DEFAULT
     from evpose.core.data.geometry import inv_T
     from evpose.core.label.windows import time_windows
 
+    if not getattr(scene, "has_poses", True):        # an event-only scene: one line, not an empty table
+        scene.require_poses("alignment scores")
     t_start = time.perf_counter()
     names = scene.object_names if objects is None else list(objects)
     p = params.resolved(scene.camera)

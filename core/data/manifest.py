@@ -43,6 +43,22 @@ class SceneError(InputError):
         super().__init__(f"{file}: {fld}: {message}" if fld else f"{file}: {message}")
 
 
+#: What ``info`` and the refusals say of a scene without ``[trajectory]`` (and so without objects).
+EVENTS_ONLY = "events only: no trajectory, no objects"
+#: How a trajectory is added to such a scene (README, "Event-only scenes").
+ADD_TRAJECTORY_HINT = "add a trajectory with: evpose scene set-trajectory SCENE TRAJECTORY"
+
+
+class NoPosesError(SceneError):
+    """Poses were asked of an event-only scene (one without a ``[trajectory]`` table): raised by everything
+    that needs the trajectory (labels, alignment, scores), never when the scene opens. ``str(exc)`` is one
+    line naming the manifest and the missing table."""
+
+    def __init__(self, file, what: str = "poses"):
+        super().__init__(file, "[trajectory]", f"missing table: a camera trajectory is needed for {what}; this "
+                         f"scene holds {EVENTS_ONLY} ({ADD_TRAJECTORY_HINT})")
+
+
 @dataclass
 class ObjectSpec:
     """One ``[[objects]]`` entry: where the mesh is and where the object stands in the base frame."""
@@ -66,7 +82,7 @@ class SceneManifest:
     name: str
     camera: CameraModel
     events_path: Path
-    trajectory_path: Path
+    trajectory_path: Path | None  # None: an event-only scene (no [trajectory] table, no objects)
     trajectory_frame: str = "cam"
     hand_eye: np.ndarray | None = None  # T_tcp_cam, required when trajectory_frame == "tcp"
     clock_offset_us: int = 0
@@ -78,6 +94,11 @@ class SceneManifest:
     @property
     def root(self) -> Path:
         return self.path.parent
+
+    @property
+    def has_trajectory(self) -> bool:
+        """The manifest has a ``[trajectory]`` table (False: an event-only scene, see :data:`EVENTS_ONLY`)."""
+        return self.trajectory_path is not None
 
     def object(self, name: str) -> ObjectSpec:
         for o in self.objects:
@@ -93,11 +114,13 @@ class SceneManifest:
             except ValueError:
                 return str(p)
 
-        traj = {"path": rel(self.trajectory_path), "frame": self.trajectory_frame}
-        if self.hand_eye is not None:
-            traj["hand_eye"] = np.asarray(self.hand_eye).tolist()
-        if self.trajectory_max_gap_us is not None:
-            traj["max_gap_us"] = int(self.trajectory_max_gap_us)
+        traj = None
+        if self.trajectory_path is not None:
+            traj = {"path": rel(self.trajectory_path), "frame": self.trajectory_frame}
+            if self.hand_eye is not None:
+                traj["hand_eye"] = np.asarray(self.hand_eye).tolist()
+            if self.trajectory_max_gap_us is not None:
+                traj["max_gap_us"] = int(self.trajectory_max_gap_us)
         objs = []
         for o in self.objects:
             d = {"name": o.name, "mesh": rel(o.mesh), "mesh_scale": float(o.mesh_scale),
@@ -106,7 +129,7 @@ class SceneManifest:
             if o.repair_rotation:
                 d["repair_rotation"] = True
             objs.append(d)
-        return {
+        doc = {
             "format": SCENE_FORMAT,
             "name": self.name,
             "camera": {"width": self.camera.width, "height": self.camera.height,
@@ -116,6 +139,11 @@ class SceneManifest:
             "clock": {"offset_us": int(self.clock_offset_us), "skew_ppm": float(self.clock_skew_ppm)},
             "objects": objs,
         }
+        if traj is None:              # an event-only scene: no [trajectory] table
+            del doc["trajectory"]
+        if not objs:                  # no `objects = []` line: [[objects]] tables can be appended by hand
+            del doc["objects"]
+        return doc
 
     def save(self, path=None) -> Path:
         """Write the manifest atomically (default: its own path)."""

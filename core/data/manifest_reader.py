@@ -4,6 +4,10 @@ Every problem raises :class:`~evpose.core.data.manifest.SceneError` naming the f
 fields are ignored with a warning (``SceneManifest.warnings``). The tables are read in the order of the
 file format (DESIGN section 4): camera, events, trajectory, clock, objects.
 
+``[trajectory]`` is optional: a manifest without it (and without ``[[objects]]``, which need it) is an
+event-only scene, opened for looking at the events; what needs poses refuses it then
+(:class:`~evpose.core.data.manifest.NoPosesError`), not the reading.
+
 Paths (``events.path``, ``trajectory.path``, ``objects[i].mesh``): relative paths are relative to the
 scene folder and must stay inside it (``../x`` is refused: a relative path promises that the file
 travels with the folder, and a downloaded scene must not reach out to ``../../etc/passwd`` by
@@ -59,7 +63,10 @@ def load_manifest(path, *, check_files: bool = True, defaults: dict | None = Non
         raise SceneError(path, "", "scene manifest not found (expected a scene folder or a scene.toml)")
     data = _read_toml(path)
     if defaults:
+        own_trajectory = "trajectory" in data
         data = merge_defaults(defaults, data)
+        if not own_trajectory:            # a dataset's shared frame / hand_eye never makes a trajectory of its own
+            data.pop("trajectory", None)
     reader = _ManifestReader(path, data, check_files)
     name = reader.name()
     camera = reader.camera()
@@ -67,6 +74,10 @@ def load_manifest(path, *, check_files: bool = True, defaults: dict | None = Non
     trajectory_path, frame, hand_eye, max_gap_us = reader.trajectory()
     offset_us, skew_ppm = reader.clock()
     objects = reader.objects()
+    if trajectory_path is None and objects:
+        raise SceneError(path, "[trajectory]", f"missing table: the scene has {len(objects)} object(s) "
+                         f"({', '.join(o.name for o in objects)}), placed in the base frame, and they need a camera "
+                         "trajectory (add [trajectory], or remove [[objects]] for an event-only scene)")
     return SceneManifest(path, name, camera, events_path, trajectory_path, frame, hand_eye,
                          offset_us, skew_ppm, objects, reader.warnings, max_gap_us)
 
@@ -135,9 +146,12 @@ class _ManifestReader:
         ev_t = _table(self.data, "events", self.path)
         return _path(ev_t, "path", self.root, self.path, "events.path", self.check_files)
 
-    def trajectory(self) -> tuple[Path, str, np.ndarray | None, int | None]:
-        """``(path, frame, hand_eye T_tcp_cam or None, max_gap_us or None)`` of ``[trajectory]``."""
+    def trajectory(self) -> tuple[Path | None, str, np.ndarray | None, int | None]:
+        """``(path, frame, hand_eye T_tcp_cam or None, max_gap_us or None)`` of ``[trajectory]``; a manifest
+        without the table is an event-only scene: ``(None, "cam", None, None)``."""
         path = self.path
+        if "trajectory" not in self.data:
+            return None, "cam", None, None
         tr_t = _table(self.data, "trajectory", path)
         trajectory_path = _path(tr_t, "path", self.root, path, "trajectory.path", self.check_files)
         frame = tr_t.get("frame", "cam")

@@ -3,6 +3,12 @@
 The manifest (:mod:`evpose.core.data.manifest`, read by :func:`evpose.core.data.manifest_reader.load_manifest`)
 says where the events, the trajectory and the meshes are; they are opened lazily, when first needed, and
 cached. Problems with them raise :class:`~evpose.core.data.manifest.SceneError` naming the manifest field.
+
+An *event-only* scene has no ``[trajectory]`` (and no objects): :attr:`Scene.has_poses` is False, the events and
+the clock work as usual, and everything that needs poses (:attr:`Scene.trajectory`, :meth:`Scene.T_base_cam`,
+:meth:`Scene.T_cam_obj`, :meth:`Scene.unlabeled_reasons`, :meth:`Scene.trajectory_holes`) raises
+:class:`~evpose.core.data.manifest.NoPosesError` -- one line naming the manifest and the missing table -- when it
+is asked, never when the scene opens.
 """
 from __future__ import annotations
 
@@ -14,7 +20,7 @@ import numpy as np
 from evpose.core.data.camera import CameraModel
 from evpose.core.data.clock import ClockModel
 from evpose.core.data.geometry import inv_T
-from evpose.core.data.manifest import SceneError, SceneManifest
+from evpose.core.data.manifest import NoPosesError, SceneError, SceneManifest
 from evpose.core.data.manifest_reader import load_manifest
 from evpose.core.data.mesh_closure import cached_cull_sign
 from evpose.core.data.objects import (
@@ -78,6 +84,19 @@ class Scene:
     def object_names(self) -> list[str]:
         return [o.name for o in self.manifest.objects]
 
+    @property
+    def has_poses(self) -> bool:
+        """The scene has a trajectory, so camera poses and (with objects) labels. False for an event-only scene:
+        events, event frames and the clock work; whatever needs poses raises
+        :class:`~evpose.core.data.manifest.NoPosesError`."""
+        return self.manifest.has_trajectory
+
+    def require_poses(self, what: str = "poses") -> None:
+        """Refuse an event-only scene for ``what`` (e.g. ``"alignment scores"``): one
+        :class:`~evpose.core.data.manifest.NoPosesError` line naming the manifest and the missing table."""
+        if not self.has_poses:
+            raise NoPosesError(self.manifest.path, what)
+
     @cached_property
     def events(self):
         """The scene's :class:`~evpose.core.data.event_store.EventStore` (opened read-only on first use; events outside
@@ -90,7 +109,10 @@ class Scene:
     @cached_property
     def trajectory(self) -> Trajectory:
         """The trajectory file, with holes where samples are more than ``max_gap_us`` apart
-        (``[trajectory] max_gap_us``, default :func:`evpose.core.data.trajectory_holes.default_max_gap_us`)."""
+        (``[trajectory] max_gap_us``, default :func:`evpose.core.data.trajectory_holes.default_max_gap_us`).
+        An event-only scene raises :class:`~evpose.core.data.manifest.NoPosesError`."""
+        if not self.has_poses:
+            raise NoPosesError(self.manifest.path)
         mg = self.manifest.trajectory_max_gap_us
         try:
             traj = Trajectory.load_csv(self.manifest.trajectory_path, max_gap_us="auto" if mg is None else mg)

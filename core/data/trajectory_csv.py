@@ -22,12 +22,17 @@ from evpose.core.data.trajectory import TrajectoryError
 CSV_HEADER = ("t_us", "x", "y", "z", "qx", "qy", "qz", "qw")
 
 
-def write_pose_csv(path, t_us, positions_m, quats_xyzw) -> Path:
-    """Write the samples atomically; floats with repr precision (exact round trip)."""
+def pose_csv_text(t_us, positions_m, quats_xyzw) -> str:
+    """The CSV text of the samples (header line first); floats with repr precision (exact round trip)."""
     lines = [",".join(CSV_HEADER)]
     lines += [f"{int(ti)}," + ",".join(repr(float(v)) for v in (*p, *q))
               for ti, p, q in zip(t_us, positions_m, quats_xyzw)]
-    return atomic_write_text(path, "\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
+
+
+def write_pose_csv(path, t_us, positions_m, quats_xyzw) -> Path:
+    """Write the samples atomically (:func:`pose_csv_text`)."""
+    return atomic_write_text(path, pose_csv_text(t_us, positions_m, quats_xyzw))
 
 
 def read_pose_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -74,12 +74,13 @@ def export_fingerprint(scene, names, *, fmt, format_options, window_us, window_e
         "camera": m.camera.to_dict(),
         "events": {"file": Path(m.events_path).name, "size": Path(m.events_path).stat().st_size,
                    "n_events": int(ev.n_events), "t_first_us": ev.t_first_us, "t_last_us": ev.t_last_us},
-        "trajectory": {**file_digest(m.trajectory_path), "frame": m.trajectory_frame,
-                       "hand_eye": None if m.hand_eye is None else T_list(m.hand_eye),
-                       "hand_eye_delta": T_list(scene.corrections.hand_eye_delta),
-                       # an explicit max gap changes the holes; the default follows from the file digest
-                       **({} if getattr(m, "trajectory_max_gap_us", None) is None
-                          else {"max_gap_us": int(m.trajectory_max_gap_us)})},
+        "trajectory": None if m.trajectory_path is None else {     # None: an event-only scene
+            **file_digest(m.trajectory_path), "frame": m.trajectory_frame,
+            "hand_eye": None if m.hand_eye is None else T_list(m.hand_eye),
+            "hand_eye_delta": T_list(scene.corrections.hand_eye_delta),
+            # an explicit max gap changes the holes; the default follows from the file digest
+            **({} if getattr(m, "trajectory_max_gap_us", None) is None
+               else {"max_gap_us": int(m.trajectory_max_gap_us)})},
         "clock": {"offset_us": int(clock.offset_us), "skew_ppm": float(clock.skew_ppm), "t_ref_us": int(clock.t_ref_us)},
         "objects": objects,
         "occluders": occluders,

@@ -23,13 +23,20 @@ Layout (N = selected windows, in tiling order; K = exported objects; H x W = sen
                                               corner index set = max along axis a; x bit 0, y bit 1, z bit 2)
     _done              (N,) uint8             1 when the row is complete (resume bookkeeping)
 
+An event-only scene (no trajectory, no objects: ``scene.toml`` without ``[trajectory]``) gives the same file without
+the labels: ``windows`` (``valid`` false in every row), ``frames/counts``, the optional ``frames/three_channel`` and
+``_done``; no ``T_cam_obj``, ``T_base_cam``, ``bbox_*``, ``keypoints_uv``, ``corners_cam``, ``center_uv``,
+``visib_fract``, ``px_count_*``, ``label_map`` or ``objects/``; the root attribute ``events_only`` is true (false in a
+labelled export) and ``object_names`` / ``class_ids`` are empty. The events themselves stay in the scene's
+``events.h5``: ``windows`` ``i0``/``i1`` index them there.
+
 Image datasets are chunked one window per chunk and compressed with Blosc/LZ4 (``hdf5plugin``; readers
 need ``import hdf5plugin``); small datasets are chunked along windows. The finished file is written once more in
 a canonical order (:mod:`evpose.core.export.h5_canonical`): equal inputs give byte-identical files across runs,
 ``--jobs``, Dask workers and resumes. Root attributes: format,
 evpose_version, scene, camera_K, camera_dist, width, height, object_names, class_ids, clock_offset_us,
 clock_skew_ppm, clock_t_ref_us, corrections (JSON), window_us / window_events, label_at, margin_m,
-counts_saturation, config_sha256.
+counts_saturation, events_only, config_sha256.
 """
 from __future__ import annotations
 
@@ -98,6 +105,7 @@ class H5Writer(FormatWriter):
 
     fmt = "h5"
     process_unlabeled = True        # frames and the windows row are written for unlabeled windows too
+    events_only_ok = True           # an event-only scene: events and event frames, no label dataset
 
     def __init__(self, three_channel: bool = False, compression: str | None = "blosc-lz4"):
         if compression not in ("blosc-lz4", "gzip", None):
@@ -143,7 +151,7 @@ class H5Writer(FormatWriter):
         try:
             f = h5py.File(part, "r+", rdcc_nbytes=0)
             if (f.attrs.get("config_sha256") != ctx.sha
-                    or not layout_ok(f, len(ctx.extra["selected"]), self.three_channel)
+                    or not layout_ok(f, len(ctx.extra["selected"]), self.three_channel, ctx.scene.has_poses)
                     or not within_end_of_allocation(f, part)):
                 f.close()
                 f = None
@@ -185,13 +193,14 @@ class H5Writer(FormatWriter):
 
     def completed(self, ctx) -> dict[int, dict]:
         sel = ctx.extra["selected"]
+        written = ctx.extra["valid"] | (not ctx.scene.has_poses)     # an event-only scene's rows are all written
         if ctx.extra.get("h5_complete"):
             return {w.index: {"i": w.index, "status": "written" if v else "unlabeled"}
-                    for w, v in zip(sel, ctx.extra["valid"])}
+                    for w, v in zip(sel, written)}
         f = ctx.extra["h5"]
         done = f["_done"][:] if len(sel) else np.zeros(0, np.uint8)
         return {w.index: {"i": w.index, "status": "written" if v else "unlabeled"}
-                for w, v, d in zip(sel, ctx.extra["valid"], done) if d}
+                for w, v, d in zip(sel, written, done) if d}
 
     def accept(self, ctx, record, payload) -> None:
         buf = ctx.extra["h5_buffer"]
@@ -313,6 +322,9 @@ class H5Writer(FormatWriter):
         p = {"row": task.row, "frames/counts": counts}
         if self.three_channel:      # three_channel_rgb(three_channel(...)) computed at the event pixels only
             p["frames/three_channel"] = three_channel_image(ev, W, H, w.t0_us, (pos | neg).ravel())
+        if not wctx.scene.has_poses:        # an event-only scene: the frames are the whole row
+            wctx.timings["images"] += time.perf_counter() - t0
+            return {"i": w.index, "status": "written"}, p
         if labels is not None:
             objs = [labels.objects[k] for k in wctx.sel]
             p["T_cam_obj"] = np.stack([o.T_cam_obj for o in objs])

@@ -71,6 +71,18 @@ def _create_datasets(f, ctx, three_channel: bool, comp_kw: dict) -> None:
     for r, w in enumerate(sel):
         win[r] = (w.index, w.t0_us, w.t1_us, w.t_label_us, w.i0, w.i1, w.n_events, bool(ctx.extra["valid"][r]))
     f.create_dataset("windows", data=win, track_times=False, **small)
+    if scene.has_poses:
+        _create_label_datasets(f, ds, scene, ctx, (N, K, H, W))
+    ds("frames/counts", (N, 2, H, W), "u2", 0, chunk=(1, 2, H, W), comp=True)
+    if three_channel:
+        ds("frames/three_channel", (N, H, W, 3), "u1", 0, chunk=(1, H, W, 3), comp=True)
+    ds("_done", (N,), "u1", 0)
+
+
+def _create_label_datasets(f, ds, scene, ctx, shape) -> None:
+    """The datasets of the labels in ``f`` (none for an event-only scene); ``ds(name, shape, dtype, fill, ...)``
+    creates one chunked along windows."""
+    N, K, H, W = shape
     ds("T_cam_obj", (N, K, 4, 4), "f8", np.nan)
     ds("T_base_cam", (N, 4, 4), "f8", np.nan)
     ds("bbox_obj", (N, K, 4), "i4", -1)
@@ -82,10 +94,6 @@ def _create_datasets(f, ctx, three_channel: bool, comp_kw: dict) -> None:
     ds("px_count_all", (N, K), "i8", 0)
     ds("px_count_visib", (N, K), "i8", 0)
     ds("label_map", (N, H, W), "i2", -1, chunk=(1, H, W), comp=True)
-    ds("frames/counts", (N, 2, H, W), "u2", 0, chunk=(1, 2, H, W), comp=True)
-    if three_channel:
-        ds("frames/three_channel", (N, H, W, 3), "u1", 0, chunk=(1, H, W, 3), comp=True)
-    ds("_done", (N,), "u1", 0)
     corners = np.stack([scene.model(n).bbox_corners(ctx.margin_m) for n in ctx.names]) if K else np.zeros((0, 8, 3))
     f.create_dataset("objects/corners_obj", data=corners, track_times=False)
 
@@ -116,13 +124,15 @@ def _write_attributes(f, ctx) -> None:
     a["label_at"] = ctx.label_at
     a["margin_m"] = float(ctx.margin_m)
     a["counts_saturation"] = int(COUNTS_MAX)
+    a["events_only"] = not scene.has_poses        # True: no trajectory, no objects, so no label dataset
     a["config_sha256"] = ctx.sha
 
 
 # ------------------------------------------------------------------------------------------- resuming
-def layout_ok(f, n_rows: int, three_channel: bool) -> bool:
-    """The partial file has every dataset, each with one row per selected window."""
-    names = ["windows", "_done", "T_cam_obj", "label_map", "frames/counts"]
+def layout_ok(f, n_rows: int, three_channel: bool, labels: bool = True) -> bool:
+    """The partial file has every dataset (``labels`` False: an event-only scene's, without the labels), each with
+    one row per selected window."""
+    names = ["windows", "_done", "frames/counts"] + (["T_cam_obj", "label_map"] if labels else [])
     if three_channel:
         names.append("frames/three_channel")
     return all(k in f and f[k].shape[:1] == (n_rows,) for k in names) and f["_done"][:].shape == (n_rows,)

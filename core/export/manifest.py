@@ -4,6 +4,8 @@ Written last, after every other file: the format, evpose version, configuration 
 and hand-eye correction in effect, camera, the exported objects with their poses (manifest, correction,
 result), every window of the tiling with its status (``written``, ``unlabeled``, ``missing``,
 ``filtered_unverified``), why windows have no label, the files, and the per-window file patterns.
+``events_only`` is true for an event-only scene (no trajectory, no objects: an ``h5`` export of its event frames,
+whose windows are ``written`` without labels).
 
 Nothing of the run itself (run time, ``--jobs``, windows written now or skipped as already complete): equal
 inputs give a byte-identical manifest, as every other file of an export, however the export was run or resumed.
@@ -26,7 +28,9 @@ CLOCK_MODEL = "t_pose_us = t_event_us + offset_us + skew_ppm * 1e-6 * (t_event_u
 def _windows_table(ctx, records, selected, valid) -> dict:
     """Every window of the tiling, column-wise, with its status in this export."""
     status = {}
+    events_only = not ctx.scene.has_poses           # its windows have event frames, never labels
     for w, v in zip(selected, valid):
+        v = v or events_only
         status[w.index] = "written" if (w.index in records and v) else ("unlabeled" if not v else "missing")
     win = {"index": [], "t0_us": [], "t1_us": [], "t_label_us": [], "i0": [], "i1": [], "status": []}
     for w in ctx.windows:
@@ -84,7 +88,8 @@ def write_manifest(ctx, summary, records, selected, valid, unlabeled) -> None:
         "margin_m": ctx.margin_m,
         "format_options": fp["format_options"],
         "clock": _clock(scene),
-        "hand_eye": {"trajectory_frame": m.trajectory_frame,
+        "events_only": not scene.has_poses,
+        "hand_eye": {"trajectory_frame": m.trajectory_frame if scene.has_poses else None,
                      "hand_eye": None if m.hand_eye is None else T_list(m.hand_eye),
                      "dT_cam": T_list(scene.corrections.hand_eye_delta)},
         "camera": m.camera.to_dict(),

@@ -11,7 +11,8 @@ import numpy as np
 
 from evpose.core.errors import InputError
 
-__all__ = ["FORMATS", "ExportError", "durability_mode", "export_objects", "check_margin", "check_jobs"]
+__all__ = ["FORMATS", "ExportError", "durability_mode", "export_objects", "check_events_only", "check_margin",
+           "check_jobs"]
 
 FORMATS = ("epose", "bop", "h5")
 
@@ -44,6 +45,26 @@ def export_objects(scene, objects) -> tuple[list[str], np.ndarray]:
     names = [n for n in scene.object_names if n in names]           # scene order
     sel = np.array([scene.object_names.index(n) for n in names], np.intp)
     return names, sel
+
+
+def check_events_only(scene, writer, objects, only_verified: bool) -> bool:
+    """True when ``scene`` is event-only (no trajectory, no objects: ``scene.has_poses`` False), after refusing
+    what such a scene cannot give, in one line each: a format that writes labels (every format but ``h5``, whose
+    writer sets ``events_only_ok``), ``objects``, and ``only_verified`` (review marks are made on labels)."""
+    if getattr(scene, "has_poses", True):
+        return False
+    from evpose.core.data.manifest import ADD_TRAJECTORY_HINT, EVENTS_ONLY
+
+    path = scene.manifest.path
+    if not getattr(writer, "events_only_ok", False):
+        raise ExportError(f"{path}: [trajectory]: missing table: --format {writer.fmt} writes labels, and labels need "
+                          f"a trajectory; this scene holds {EVENTS_ONLY} (--format h5 exports its events and event "
+                          f"frames; {ADD_TRAJECTORY_HINT})")
+    if objects:
+        raise ExportError(f"objects: {path} has no objects ({EVENTS_ONLY})")
+    if only_verified:
+        raise ExportError(f"only_verified: {path} has no labels to verify ({EVENTS_ONLY})")
+    return True
 
 
 def check_margin(margin_m) -> None:

@@ -56,10 +56,10 @@ EXPORT_STATE_FILES = (CONFIG_NAME, JOURNAL_NAME)
 
 
 def scene_inputs(scene) -> list[Path]:
-    """Every file an export reads: scene.toml (first), events (a link and its target), trajectory, meshes,
+    """Every file an export reads: scene.toml (first), events (a link and its target), trajectory (if any), meshes,
     corrections.json. An output folder that holds one of them is never cleared."""
     m = scene.manifest
-    out = [Path(m.path), Path(m.events_path), Path(m.trajectory_path)]
+    out = [Path(m.path), Path(m.events_path)] + ([] if m.trajectory_path is None else [Path(m.trajectory_path)])
     out += [Path(o.mesh) for o in m.objects]
     cp = getattr(scene, "corrections_path", None)
     if cp is not None:

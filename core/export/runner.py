@@ -26,7 +26,14 @@ from evpose.core.document.corrections import Corrections
 from evpose.core.export.fingerprint import export_fingerprint, fingerprint_sha
 from evpose.core.export.journal import Journal
 from evpose.core.export.manifest import write_manifest
-from evpose.core.export.options import ExportError, check_jobs, check_margin, durability_mode, export_objects
+from evpose.core.export.options import (
+    ExportError,
+    check_events_only,
+    check_jobs,
+    check_margin,
+    durability_mode,
+    export_objects,
+)
 from evpose.core.export.out_folder import (
     EXPORT_ROLE,
     JOURNAL_NAME,
@@ -41,7 +48,6 @@ from evpose.core.export.summary import ExportSummary, count_review_usage, set_un
 from evpose.core.export.windows import build_windows, review_usage, scene_staleness, unlabeled_windows
 from evpose.core.export.worker import STAGES, WorkerSpec
 from evpose.core.export.writer import ExportContext, FormatWriter, WindowTask
-from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 from evpose.core.label.windows import DEFAULT_WINDOW_US
 
@@ -58,7 +64,10 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=DEFAULT_WINDOW
     durable = durability_mode(durable)
     scene.events                          # opened once and shared with the snapshot (closed by its owner)
     scene = _snapshot_scene(scene)        # frozen corrections: the GUI may go on editing meanwhile
-    names, sel = export_objects(scene, objects)
+    if check_events_only(scene, writer, objects, only_verified):
+        names, sel = [], np.zeros(0, np.intp)             # events and event frames only: no pose is asked for
+    else:
+        names, sel = export_objects(scene, objects)
     check_margin(margin_m)
     jobs = check_jobs(jobs)
     if window_events is not None and window_us is not None and window_us != DEFAULT_WINDOW_US:
@@ -133,12 +142,15 @@ def _select(ctx, only_verified: bool, include_stale: bool) -> _Selection:
     else:
         keep, touched, reasons = np.ones(len(windows), bool), np.zeros(len(windows), bool), []
     selected = [w for w, k in zip(windows, keep) if k]
-    pose_ann = Annotator(scene, Request(keypoints=False, masks_visible=False), objects=scene.object_names)
     t_lab = np.array([w.t_label_us for w in selected], np.int64)
-    if len(selected):
+    if len(selected) and scene.has_poses:
+        from evpose.core.label.annotate import Annotator     # (the rasteriser's module: not for event-only scenes)
+
+        pose_ann = Annotator(scene, Request(keypoints=False, masks_visible=False), objects=scene.object_names)
         T_co, T_bc, valid = pose_ann.poses(t_lab)
-    else:
-        T_co, T_bc, valid = np.zeros((0, len(scene.object_names), 4, 4)), np.zeros((0, 4, 4)), np.zeros(0, bool)
+    else:                       # no window, or an event-only scene: no pose, no label
+        N = len(selected)
+        T_co, T_bc, valid = np.zeros((N, len(scene.object_names), 4, 4)), np.full((N, 4, 4), np.nan), np.zeros(N, bool)
     ctx.extra["selected"] = selected
     ctx.extra["valid"] = valid
     ctx.extra["row_of"] = {w.index: r for r, w in enumerate(selected)}
@@ -149,8 +161,10 @@ def _new_summary(ctx, selection: _Selection, jobs: int, only_verified: bool, inc
     n_all, n_sel = len(ctx.windows), len(selection.windows)
     summary = ExportSummary(format=ctx.writer.fmt, windows_total=n_all, selected=n_sel,
                             filtered_unverified=n_all - n_sel, out_dir=str(ctx.out_dir), jobs=jobs,
-                            config_sha256=ctx.sha, timings_s=dict.fromkeys(STAGES, 0.0))
-    set_unlabeled(summary, unlabeled_windows(ctx.scene, selection.windows, selection.valid))
+                            config_sha256=ctx.sha, timings_s=dict.fromkeys(STAGES, 0.0),
+                            events_only=not ctx.scene.has_poses)
+    if ctx.scene.has_poses:       # an event-only scene's windows are not "unlabeled": it has nothing to label
+        set_unlabeled(summary, unlabeled_windows(ctx.scene, selection.windows, selection.valid))
     if only_verified:
         count_review_usage(summary, ctx.windows, selection.touched, selection.review_reasons,
                            {u["index"] for u in summary.unlabeled_windows}, include_stale)

@@ -48,6 +48,8 @@ class ExportSummary:
     timings_s : dict
         Seconds per stage (``events``, ``annotate``, ``images``, ``mat``, ``write``) summed over the
         windows processed in this run, over all processes.
+    events_only : bool
+        The scene has no trajectory and no objects: event frames without labels (``h5`` only).
     """
 
     format: str = ""
@@ -72,6 +74,7 @@ class ExportSummary:
     #: jobs > 1: seconds from creating the process pool until its first chunk of results came back,
     #: minus that chunk's processing time (spawn, imports, opening the scene in each worker).
     pool_startup_s: float = 0.0
+    events_only: bool = False
 
     def to_json(self, *, with_files: bool = True) -> dict:
         d = asdict(self)

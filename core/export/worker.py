@@ -19,7 +19,6 @@ from evpose.core.data.owned_log import OwnedLog
 from evpose.core.document.corrections import Corrections
 from evpose.core.export.out_folder import EXPORT_ROLE
 from evpose.core.export.writer import FormatWriter, WindowTask
-from evpose.core.label.annotate import Annotator
 from evpose.core.label.labels import Request
 
 __all__ = ["STAGES", "WorkerSpec", "WorkerContext"]
@@ -58,8 +57,13 @@ class WorkerContext:
         self.names = spec.names
         self.sel = np.asarray(spec.sel, np.intp)
         self.camera = self.writer.output_camera(scene) or scene.camera
-        # all objects are rasterised (objects that are not exported still occlude the exported ones)
-        self.annotator = Annotator(scene, spec.request, camera=self.camera, objects=scene.object_names)
+        # all objects are rasterised (objects that are not exported still occlude the exported ones); an event-only
+        # scene has nothing to label: no annotator, so neither meshes nor the rasteriser (numba) are loaded
+        self.annotator = None
+        if scene.has_poses:
+            from evpose.core.label.annotate import Annotator
+
+            self.annotator = Annotator(scene, spec.request, camera=self.camera, objects=scene.object_names)
         self.timings = dict.fromkeys(STAGES, 0.0)
         #: fsync each file before its rename ("file" mode); "batch" syncs the filesystem per chunk
         self.fsync_files = spec.durable == "file"

@@ -18,7 +18,8 @@ Sources and options are those of ``import dsec`` (:mod:`evpose.core.importers.re
 * the trajectory: the TRAJECTORY file when given (a pose stream in the file is then ignored, reported); else the
   file's pose stream (``poses``, or the first stream of pose type), taken as ``T_base_cam``: the pose of the
   ``targetFrame`` (camera) in the ``referenceFrame`` (base), translation in metres, quaternion w x y z (float32 in
-  the file), time stamps in µs of the event clock. Without either, the import is refused;
+  the file), time stamps in µs of the event clock. Without either, the scene is event-only (no trajectory, no
+  objects; a calibration then comes with ``--camera``);
 * the event stream is ``events``, or the first stream of event type (reported when there are several).
 
 Times are AEDAT4's int64 µs, written unchanged.
@@ -36,6 +37,7 @@ from evpose.core.importers.pose_checks import make_trajectory
 from evpose.core.importers.pose_text import read_pose_text
 from evpose.core.importers.recording import build_recording_scene, recording_camera, recording_sources
 from evpose.core.importers.report import ImportContext
+from evpose.core.importers.scene_builder import events_only
 
 SUFFIXES = (".aedat4",)
 POSE_FIELDS = ("timestamp", "translation.x", "translation.y", "translation.z", "rotation.x", "rotation.y",
@@ -50,13 +52,17 @@ def import_aedat4(sources, out, ctx: ImportContext) -> dict:
         objects = collect_objects(ctx, None)
         head = reader.header
         _check_header(ctx, rec, head, traj_file)
+        no_poses = traj_file is None and not head["pose_streams"]
+        if no_poses:
+            events_only(ctx, rec, objects)
         camera = recording_camera(ctx, calib, tuple(head["resolution"]), rec)
         ctx.report.details["aedat4"] = {"camera": head["camera"], "streams": head["streams"],
                                         "event_stream": head["event_stream"], "pose_streams": head["pose_streams"],
                                         "resolution": head["resolution"]}
         chunks = _chunks(reader, rec, head.get("time_range"))
-        return build_recording_scene(ctx, out, rec, camera, chunks,
-                                     lambda: traj if traj is not None else _pose_stream(ctx, rec, reader), objects)
+        return build_recording_scene(
+            ctx, out, rec, camera, chunks,
+            lambda: None if no_poses else traj if traj is not None else _pose_stream(ctx, rec, reader), objects)
 
 
 def _check_header(ctx: ImportContext, rec: Path, head: dict, traj_file) -> None:
@@ -73,8 +79,6 @@ def _check_header(ctx: ImportContext, rec: Path, head: dict, traj_file) -> None:
         rep.assume(f"{Path(traj_file).name}: poses are T_base_cam (camera in the base frame, metres)")
         if head["pose_streams"]:
             rep.assume(f"{rec.name}: pose stream(s) {', '.join(head['pose_streams'])} ignored (TRAJECTORY given)")
-    elif not head["pose_streams"]:
-        raise ImportFailure(rec, "(streams)", "poses", "no TRAJECTORY given and the file has no pose stream")
 
 
 def _chunks(reader: Aedat4Reader, rec: Path, time_range):

@@ -7,7 +7,8 @@ Sources (any order; a folder is searched for ``events.h5``, ``events/left/events
   ``t_offset``), ``events/p`` (0/1 or -1/+1), optional ``t_offset`` (int64 µs) and ``ms_to_idx``. Opened
   read-only (``h5py`` mode ``"r"``); never modified.
 * a trajectory: our ``t_us,x,y,z,qx,qy,qz,qw`` CSV or a headerless ``t x y z qx qy qz qw`` text file (TUM
-  style; time unit guessed from the sampling period unless ``--time-unit``), ``T_base_cam`` in metres.
+  style; time unit guessed from the sampling period unless ``--time-unit``), ``T_base_cam`` in metres. Without one
+  the scene is event-only (no trajectory, no objects).
 * calibration (or ``--camera``): DSEC ``cam_to_cam.yaml`` (``intrinsics: camN: camera_matrix [fx fy cx cy],
   distortion_coeffs, resolution``; ``--camera-key``, default ``cam0``, the left event camera), Kalibr YAML,
   or our JSON.
@@ -37,7 +38,7 @@ from evpose.core.importers.failure import ImportFailure, wrap_errors
 from evpose.core.importers.object_args import collect_objects
 from evpose.core.importers.pose_text import read_pose_text
 from evpose.core.importers.report import ImportContext, result_summary
-from evpose.core.importers.scene_builder import SceneBuilder
+from evpose.core.importers.scene_builder import SceneBuilder, events_only
 
 _CHUNK = 1 << 20
 _WRAP = 1 << 32
@@ -93,17 +94,18 @@ def import_dsec(sources, out, ctx: ImportContext) -> dict:
     found = classify_sources(sources, ctx)
     if "events" not in found:
         raise ImportFailure(", ".join(map(str, sources)), "(arguments)", "events", "no events .h5 among the sources")
-    if "trajectory" not in found:
-        raise ImportFailure(", ".join(map(str, sources)), "(arguments)", "trajectory", "no trajectory .csv/.txt "
-                            "among the sources")
     cam_file = opts.camera or found.get("camera")
     if cam_file is None:
         raise ImportFailure(", ".join(map(str, sources)), "(arguments)", "camera", "no calibration: give "
                             "cam_to_cam.yaml or --camera")
     camera = load_camera(cam_file, ctx)
     src = found["events"]
-    traj = read_pose_text(found["trajectory"], ctx)
     objects = collect_objects(ctx, None)
+    traj = None
+    if "trajectory" not in found:         # no trajectory .csv/.txt among the sources: an event-only scene
+        events_only(ctx, src, objects)
+    else:
+        traj = read_pose_text(found["trajectory"], ctx)
 
     with wrap_errors(src, "(file)", "-", "cannot open as HDF5"):
         h5 = h5py.File(src, "r", locking=False)
@@ -124,9 +126,10 @@ def import_dsec(sources, out, ctx: ImportContext) -> dict:
                 sb.finish_events(sink, src)
             else:
                 _reference(ctx, sb, sink, src, n_wraps)
-            sb.set_trajectory(traj, "cam")
-            rep.assume(f"{found['trajectory'].name}: poses are T_base_cam (camera in the base frame, metres)")
-            sb.add_cli_objects(objects)
+            if traj is not None:
+                sb.set_trajectory(traj, "cam")
+                rep.assume(f"{found['trajectory'].name}: poses are T_base_cam (camera in the base frame, metres)")
+                sb.add_cli_objects(objects)
             sb.commit(camera)
     finally:
         h5.close()

@@ -9,6 +9,8 @@ Keys (one archive, or events and poses in two archives given as two sources):
   metres) and ``quaternion`` (N, 4, x y z w), or ``T_base_cam`` (N, 4, 4). Camera pose in the base frame.
 * optional camera: ``K`` (3, 3), ``dist``, ``width``, ``height`` (or ``--camera``).
 
+One archive without pose times makes an event-only scene (no trajectory, no objects; ``--objects`` refused).
+
 The event arrays are **streamed** out of the zip member (:mod:`evpose.core.importers.npz_arrays`), so memory
 does not grow with the archive; the pose and camera arrays are small and read whole. Pickled object arrays are
 refused.
@@ -26,7 +28,7 @@ from evpose.core.importers.npz_arrays import NpyMember, open_zip, small_array, s
 from evpose.core.importers.object_args import collect_objects
 from evpose.core.importers.pose_checks import make_trajectory, poses_from_matrices
 from evpose.core.importers.report import ImportContext, result_summary
-from evpose.core.importers.scene_builder import SceneBuilder
+from evpose.core.importers.scene_builder import SceneBuilder, events_only
 from evpose.core.importers.time_guess import resolve_time_unit
 from evpose.core.importers.time_units import float_to_us
 
@@ -59,12 +61,16 @@ def _import(paths, zfs, out, ctx: ImportContext) -> dict:
         raise ImportFailure(paths[0], "(archive)", "x/y/t/p", f"no archive holds all of x, y, t, p "
                             f"(keys: {', '.join(sorted(set().union(*names)))})")
     ps_i = next((i for i, nm in enumerate(names) if ("t_us" in nm or "pose_t" in nm)), None)
-    if ps_i is None:
-        raise ImportFailure(paths[-1], "(archive)", "t_us", "no pose times (t_us or pose_t)")
+    if ps_i is None and len(paths) > 1:
+        raise ImportFailure(paths[-1], "(archive)", "t_us", "no pose times (t_us or pose_t) in either archive")
     epath, ezf = paths[ev_i], zfs[ev_i]
-    traj = _read_trajectory(ctx, zfs[ps_i], paths[ps_i], names[ps_i])
-    camera = _read_camera(ctx, (ezf, epath, names[ev_i]), (zfs[ps_i], paths[ps_i], names[ps_i]))
     objects = collect_objects(ctx, None)
+    if ps_i is None:                  # events without poses: an event-only scene
+        events_only(ctx, epath, objects)
+        traj, ps_i = None, ev_i
+    else:
+        traj = _read_trajectory(ctx, zfs[ps_i], paths[ps_i], names[ps_i])
+    camera = _read_camera(ctx, (ezf, epath, names[ev_i]), (zfs[ps_i], paths[ps_i], names[ps_i]))
     members = [NpyMember(ezf, k, epath) for k in EVENT_KEYS]
     try:
         n = members[2].n
@@ -78,14 +84,30 @@ def _import(paths, zfs, out, ctx: ImportContext) -> dict:
             sink = sb.event_sink(camera.width, camera.height, expected_events=n)
             _stream_events(ctx, members, n, stored, epath, sink)
             sb.finish_events(sink, epath)
-            sb.set_trajectory(traj, "cam")
-            sb.add_cli_objects(objects)
+            if traj is not None:
+                sb.set_trajectory(traj, "cam")
+                sb.add_cli_objects(objects)
             sb.commit(camera)
     finally:
         for m in members:
             m.close()
     ctx.progress(1.0, "done")
     return result_summary(ctx, sb.out)
+
+
+def read_npz_trajectory(path, ctx: ImportContext):
+    """The camera trajectory of one ``.npz`` archive (``t_us`` or ``pose_t`` with ``position`` + ``quaternion`` or
+    ``T_base_cam``, as :func:`import_npz` reads it), validated; for ``evpose scene set-trajectory``."""
+    path = Path(path)
+    zf = open_zip(path)
+    try:
+        names = {n[:-4] for n in zf.namelist() if n.endswith(".npy")}
+        if "t_us" not in names and "pose_t" not in names:
+            raise ImportFailure(path, "(archive)", "t_us", f"no pose times (t_us or pose_t; keys: "
+                                f"{', '.join(sorted(names)) or 'none'})")
+        return _read_trajectory(ctx, zf, path, names)
+    finally:
+        zf.close()
 
 
 def _pose_times(ctx: ImportContext, pzf, ppath: Path, pn: set) -> tuple[str, np.ndarray, np.ndarray]:

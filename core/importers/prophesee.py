@@ -1,5 +1,5 @@
 """Prophesee / Metavision recordings: EVT 2.0 and EVT 3.0 ``.raw`` and ``.dat`` (``evpose import prophesee
-REC.raw|REC.dat [TRAJECTORY [CALIB]]``).
+REC.raw|REC.dat [TRAJECTORY [CALIB]]``; without a TRAJECTORY an event-only scene).
 
 The headers are read with ``faery`` (PyPI, Rust decoders for EVT 2.0 / 3.0 and DAT 1 / 2 with Python
 bindings; the tests also write their files with its encoders). Metavision's own SDK is not on PyPI. Candidates measured
@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evpose.core.importers.failure import ImportFailure, wrap_errors
+from evpose.core.importers.failure import wrap_errors
 from evpose.core.importers.object_args import collect_objects
 from evpose.core.importers.pose_text import read_pose_text
 from evpose.core.importers.prophesee_header import open_decoder, warn_partial_word
@@ -65,6 +65,7 @@ from evpose.core.importers.evt3_words import Evt3Words
 from evpose.core.importers.prophesee_words import DatWords, Evt2Words
 from evpose.core.importers.recording import build_recording_scene, recording_camera, recording_sources
 from evpose.core.importers.report import ImportContext
+from evpose.core.importers.scene_builder import events_only
 
 SUFFIXES = (".raw", ".dat")
 #: Words are decoded in chunks of this many before validation.
@@ -74,12 +75,13 @@ CHUNK_EVENTS = 1 << 20
 def import_prophesee(sources, out, ctx: ImportContext) -> dict:
     """Import an EVT 2.0 / EVT 3.0 ``.raw`` or ``.dat`` recording (+ trajectory, calibration); returns the summary."""
     rec, traj_file, calib = recording_sources(sources, "prophesee", SUFFIXES)
-    if traj_file is None:
-        raise ImportFailure(rec, "(arguments)", "TRAJECTORY", "a Prophesee recording holds no poses: give "
-                            "REC TRAJECTORY [CALIB]")
-    traj = read_pose_text(traj_file, ctx)
-    ctx.report.assume(f"{traj_file.name}: poses are T_base_cam (camera in the base frame, metres)")
     objects = collect_objects(ctx, None)
+    traj = None
+    if traj_file is None:                 # a Prophesee recording holds no poses
+        events_only(ctx, rec, objects)
+    else:
+        traj = read_pose_text(traj_file, ctx)
+        ctx.report.assume(f"{traj_file.name}: poses are T_base_cam (camera in the base frame, metres)")
     decoder, head = open_decoder(rec, ctx)
     warn_partial_word(ctx, rec, head)
     camera = recording_camera(ctx, calib, head.size, rec)

@@ -2,7 +2,9 @@
 
 Sources are positional: the recording, then optionally a trajectory (our ``t_us,x,y,z,qx,qy,qz,qw`` CSV or a
 TUM-style text file, ``T_base_cam`` in metres, read by :func:`~evpose.core.importers.pose_text.read_pose_text`),
-then optionally a calibration (any file ``--camera`` takes). The options are those of ``import dsec``.
+then optionally a calibration (any file ``--camera`` takes). The options are those of ``import dsec``. Without a
+trajectory (and a recording holding no poses) the scene is event-only (no ``[trajectory]``, no objects:
+:func:`~evpose.core.importers.scene_builder.events_only`); a calibration then comes with ``--camera``.
 
 The sensor size comes from the recording; a calibration made for another size is refused (``--width/--height``
 override both). Without a calibration a 346x260 sensor gets E-POSE's DAVIS346 calibration (reported, as
@@ -78,9 +80,10 @@ def build_recording_scene(ctx: ImportContext, out, rec: Path, camera: CameraMode
                           trajectory: Callable[[], object], objects: dict | None = None,
                           clock_offset_us: Callable[[], int] | None = None) -> dict:
     """Stream ``chunks`` into the scene's events, add ``trajectory()`` (a ``T_base_cam``
-    :class:`~evpose.core.data.trajectory.Trajectory`, called once the events are in) and the ``--objects``,
-    commit with the clock prior ``clock_offset_us()`` (called then; default 0, ``--offset-us`` overrides);
-    returns the import summary."""
+    :class:`~evpose.core.data.trajectory.Trajectory`, called once the events are in; None: an event-only scene, for
+    which :func:`~evpose.core.importers.scene_builder.events_only` was called) and the ``--objects``, commit with the
+    clock prior ``clock_offset_us()`` (called then; default 0, ``--offset-us`` overrides); returns the import
+    summary."""
     objects = collect_objects(ctx, None) if objects is None else objects
     with SceneBuilder(out, ctx) as sb:
         sink = sb.event_sink(camera.width, camera.height)
@@ -90,8 +93,10 @@ def build_recording_scene(ctx: ImportContext, out, rec: Path, camera: CameraMode
             n += len(t)
             ctx.progress(0.97 * fraction, f"{n:,} events")
         sb.finish_events(sink, rec)
-        sb.set_trajectory(trajectory(), "cam")
-        sb.add_cli_objects(objects)
+        traj = trajectory()
+        if traj is not None:
+            sb.set_trajectory(traj, "cam")
+            sb.add_cli_objects(objects)
         ctx.progress(0.99, "writing scene")
         sb.commit(camera, clock_offset_us=int(clock_offset_us()) if clock_offset_us is not None else 0)
     ctx.progress(1.0, "done")

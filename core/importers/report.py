@@ -107,7 +107,7 @@ def result_summary(ctx: ImportContext, out: Path) -> dict:
     """The JSON summary printed by ``evpose import --json`` and returned by the API."""
     r = ctx.report
     return {"scene": str(out), "format": r.fmt, "n_events": r.counts.get("events_written"),
-            "n_poses": r.details.get("trajectory", {}).get("n"),
+            "n_poses": r.details.get("trajectory", {}).get("n", 0), "events_only": bool(r.details.get("events_only")),
             "objects": list(r.details.get("objects", {})), "report": str(Path(out) / REPORT_FILENAME),
             "assumptions": r.assumptions, "repairs": r.repairs, "warnings": r.warnings,
             "runtime_s": time.perf_counter() - ctx.t_start}

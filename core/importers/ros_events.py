@@ -1,5 +1,5 @@
 """ROS bags of today's event-camera drivers: ``event_camera_msgs/EventPacket`` (``evpose import ros-events
-BAG TRAJECTORY [CALIB]``; issue 26.2).
+BAG [TRAJECTORY [CALIB]]``; issue 26.2; without a TRAJECTORY an event-only scene, issue 26.4).
 
 The ROS1 and ROS2 drivers of Prophesee and iniVation cameras (``metavision_driver``, ``libcaer_driver``) publish
 packets of encoded events::
@@ -43,6 +43,7 @@ from evpose.core.importers.object_args import collect_objects
 from evpose.core.importers.pose_text import read_pose_text
 from evpose.core.importers.recording import build_recording_scene, recording_camera
 from evpose.core.importers.report import ImportContext
+from evpose.core.importers.scene_builder import events_only
 
 __all__ = ["EVENT_PACKET_TYPE", "EVENT_PACKET_MSG", "import_ros_events", "decode_mono"]
 
@@ -138,14 +139,18 @@ def _events_topic(reader, bag: Path, ctx: ImportContext) -> str:
 def import_ros_events(sources, out, ctx: ImportContext) -> dict:
     """Import the event packets of a ROS bag (+ trajectory, calibration); returns the summary."""
     srcs = [Path(s) for s in sources]
-    if not 2 <= len(srcs) <= 3:
+    if not 1 <= len(srcs) <= 3:
         raise ImportFailure(", ".join(map(str, srcs)) or "(none)", "(arguments)", "SRC",
-                            "ros-events: give BAG TRAJECTORY [CALIB] (the drivers' bags hold no poses)")
-    bag, traj_file, calib = srcs[0], srcs[1], (srcs[2] if len(srcs) > 2 else None)
+                            "ros-events: give BAG [TRAJECTORY [CALIB]] (the drivers' bags hold no poses)")
+    bag, traj_file, calib = srcs[0], (srcs[1] if len(srcs) > 1 else None), (srcs[2] if len(srcs) > 2 else None)
     _check_bag(bag)
-    traj = read_pose_text(traj_file, ctx)
-    ctx.report.assume(f"{traj_file.name}: poses are T_base_cam (camera in the base frame, metres)")
     objects = collect_objects(ctx, None)
+    traj = None
+    if traj_file is None:             # the drivers' bags hold no poses: an event-only scene
+        events_only(ctx, bag, objects)
+    else:
+        traj = read_pose_text(traj_file, ctx)
+        ctx.report.assume(f"{traj_file.name}: poses are T_base_cam (camera in the base frame, metres)")
     from rosbags.highlevel import AnyReader
 
     ts = _typestore()

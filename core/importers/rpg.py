@@ -3,7 +3,8 @@
 Sources: a sequence folder, or the files themselves:
 
 * ``events.txt``: one event per line, ``t x y p`` (t in seconds as a decimal, e.g. ``0.000051000 33 39 1``);
-* ``groundtruth.txt``: ``t px py pz qx qy qz qw`` (seconds, metres, quaternion x y z w) = ``T_base_cam``;
+* ``groundtruth.txt``: ``t px py pz qx qy qz qw`` (seconds, metres, quaternion x y z w) = ``T_base_cam`` (without it
+  the scene is event-only: no trajectory, no objects);
 * ``calib.txt``: ``fx fy cx cy k1 k2 p1 p2 k3`` (sensor size not in the file: DAVIS240C 240x180 assumed unless
   ``--width/--height`` or ``--camera``).
 
@@ -32,7 +33,7 @@ from evpose.core.importers.rpg_text import (
     parse_columns,
     strip_comments,
 )
-from evpose.core.importers.scene_builder import SceneBuilder
+from evpose.core.importers.scene_builder import SceneBuilder, events_only
 from evpose.core.importers.time_guess import resolve_time_unit
 from evpose.core.importers.time_units import float_to_us
 
@@ -61,17 +62,19 @@ def import_rpg(sources, out, ctx: ImportContext) -> dict:
     """Import an Event Camera Dataset sequence into a scene folder; returns the summary."""
     opts, rep = ctx.options, ctx.report
     found = _find(sources, {"events": "events.txt", "trajectory": "groundtruth.txt", "camera": "calib.txt"})
-    for role in ("events", "trajectory"):
-        if role not in found:
-            raise ImportFailure(", ".join(map(str, sources)), "(arguments)", role,
-                                f"no {'events.txt' if role == 'events' else 'groundtruth.txt'} among the sources")
+    if "events" not in found:
+        raise ImportFailure(", ".join(map(str, sources)), "(arguments)", "events", "no events.txt among the sources")
     cam_file = opts.camera or found.get("camera")
     if cam_file is None:
         raise ImportFailure(", ".join(map(str, sources)), "(arguments)", "camera", "no calib.txt and no --camera")
     camera = load_camera(cam_file, ctx, default_size=(240, 180))
-    traj = read_pose_text(found["trajectory"], ctx, declared_unit="s", what="groundtruth")
     objects = collect_objects(ctx, None)
     ev = found["events"]
+    traj = None
+    if "trajectory" not in found:         # no groundtruth.txt: an event-only scene
+        events_only(ctx, ev, objects)
+    else:
+        traj = read_pose_text(found["trajectory"], ctx, declared_unit="s", what="groundtruth")
     with SceneBuilder(out, ctx) as sb:
         sink = sb.event_sink(camera.width, camera.height)
         n_fallback = _stream_events(ctx, ev, sink)
@@ -79,9 +82,10 @@ def import_rpg(sources, out, ctx: ImportContext) -> dict:
             rep.assume(f"{ev.name}: {n_fallback} block(s) with exponents/NaN/long numbers parsed as float64 "
                        "(times exact only to float64 precision there)")
         sb.finish_events(sink, ev)
-        sb.set_trajectory(traj, "cam")
-        rep.assume("groundtruth.txt is the camera pose in the world/base frame (T_base_cam, metres)")
-        sb.add_cli_objects(objects)
+        if traj is not None:
+            sb.set_trajectory(traj, "cam")
+            rep.assume("groundtruth.txt is the camera pose in the world/base frame (T_base_cam, metres)")
+            sb.add_cli_objects(objects)
         sb.commit(camera)
     ctx.progress(1.0, "done")
     return result_summary(ctx, sb.out)

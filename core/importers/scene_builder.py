@@ -4,6 +4,10 @@ The scene is built in a hidden, locked staging folder beside ``--out`` (:class:`
 StagingFolder`), synced, and renamed into place at the end; on any error, cancel or ``KeyboardInterrupt`` the
 staging folder is removed, so a partial scene folder never exists. Every file it writes is logged first, so
 that a later ``--force`` removes only what evpose wrote.
+
+A scene committed without :meth:`SceneBuilder.set_trajectory` is *event-only*: no ``[trajectory]``, no objects
+(:func:`events_only` refuses ``--objects`` for it before anything is read, and says in the report what the scene
+is); :mod:`evpose.core.importers.scene_edit` adds a trajectory later.
 """
 from __future__ import annotations
 
@@ -167,8 +171,8 @@ class SceneBuilder:
 
         if not self._has_events:
             raise ImportFailure(self.out, "(scene)", "events", "internal: no events were written")
-        if not self._has_traj:
-            raise ImportFailure(self.out, "(scene)", "trajectory", "internal: no trajectory was written")
+        if not self._has_traj and self.objects:
+            raise ImportFailure(self.out, "(scene)", "trajectory", "internal: objects without a trajectory")
         if self.ctx.options.offset_us is not None:
             self.ctx.report.assume(f"clock prior offset {int(self.ctx.options.offset_us)} µs (--offset-us)")
             clock_offset_us = int(self.ctx.options.offset_us)
@@ -177,7 +181,8 @@ class SceneBuilder:
         specs = [ObjectSpec(o.name, o.mesh, o.T_base_obj, o.mesh_scale, o.class_id, o.symmetric, o.repair_rotation,
                             o.rotation_residual, o.T_base_obj_raw) for o in self.objects]
         manifest = SceneManifest(self.tmp / SCENE_FILENAME, name, camera, self.tmp / "events.h5",
-                                 self.tmp / "trajectory.csv", self.trajectory_frame, self.hand_eye,
+                                 self.tmp / "trajectory.csv" if self._has_traj else None, self.trajectory_frame,
+                                 self.hand_eye,
                                  int(clock_offset_us), float(clock_skew_ppm), specs)
         doc = manifest.to_toml_dict()
         doc["events"]["path"] = self.events_ref          # link/reference modes: never resolved through a symlink
@@ -204,6 +209,19 @@ class SceneBuilder:
             self.staging.commit(self.inputs, self.ctx.options.force)
         except NotOurs as exc:
             raise ImportFailure(exc.path, "(output)", "--out", exc.reason) from None
+
+
+def events_only(ctx: ImportContext, src, objects: dict) -> None:
+    """The import of ``src`` has no trajectory: the scene will be event-only. Refuse ``--objects`` (placed in the
+    base frame, they need the camera's trajectory) before anything is read; say what the scene is in the report
+    (``events_only``: true)."""
+    if objects:
+        raise ImportFailure(src, "(arguments)", "--objects", f"objects ({', '.join(objects)}) are placed in the base "
+                            "frame and need a camera trajectory: give the TRAJECTORY too, or leave out --objects for "
+                            "an event-only scene")
+    ctx.report.details["events_only"] = True
+    ctx.report.assume("no trajectory: an event-only scene (events and event frames, no labels; evpose scene "
+                      "set-trajectory SCENE TRAJECTORY adds one later)")
 
 
 def warn_if_no_time_overlap(report, offset_us: int, skew_ppm: float) -> None:

@@ -80,11 +80,15 @@ def test_every_command_returns_an_exit_status():
     bad input escape as a traceback)."""
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     names = set(sub.choices)
-    assert names == {"demo", "synth", "info", "gui", "export", "import", "sync", "refine", "score", "dataset"}
+    assert names == {"demo", "synth", "info", "gui", "export", "import", "scene", "sync", "refine", "score",
+                     "dataset"}
     parsers = dict(sub.choices)
     nested = next(a for a in parsers.pop("dataset")._actions if isinstance(a, argparse._SubParsersAction))
     assert set(nested.choices) == {"info", "import", "sync", "refine", "score", "report", "export"}
     parsers.update({f"dataset {n}": p for n, p in nested.choices.items()})
+    nested = next(a for a in parsers.pop("scene")._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(nested.choices) == {"set-trajectory", "add-objects"}
+    parsers.update({f"scene {n}": p for n, p in nested.choices.items()})
     for name, parser in parsers.items():
         func = parser.get_default("func")
         assert getattr(func, "__wrapped__", None) is not None, f"evpose {name}: handler not wrapped by command()"
@@ -157,7 +161,7 @@ def test_parser_and_help_load_no_engine_module(tmp_path):
         "from evpose.app.cli.main import build_parser\n"
         "p = build_parser()\n"
         "for cmd in ([], ['demo'], ['synth'], ['info'], ['gui'], ['export'], ['import'], ['sync'], ['refine'], ['dataset'], ['dataset', 'export'],"
-        " ['score']):\n"
+        " ['score'], ['scene'], ['scene', 'set-trajectory'], ['scene', 'add-objects']):\n"
         "    with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
         "        p.parse_args([*cmd, '--help'])\n"
         f"heavy = sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY!r})\n"
@@ -173,6 +177,10 @@ def test_import_format_names_are_the_engines():
     from evpose.core.importers import FORMATS
 
     assert FORMAT_NAMES == tuple(FORMATS)
+    from evpose.app.cli.scene import TRAJECTORY_FORMATS
+    from evpose.core.importers import scene_edit
+
+    assert TRAJECTORY_FORMATS == scene_edit.TRAJECTORY_FORMATS
 
 
 @pytest.mark.parametrize("at", ["-1", "nan", "inf"])

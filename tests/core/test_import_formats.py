@@ -33,6 +33,7 @@ from test_importers import (  # noqa: F401
 )
 
 from evpose.core.data.events import EventArray
+from evpose.core.data.manifest_reader import load_manifest
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.importers import ImportFailure, import_scene
 
@@ -97,11 +98,11 @@ def test_aedat4_trajectory_file_wins_and_size_comes_from_the_file(src, tmp_path)
         import_scene("aedat4", [rec346, csv, src.cam_json], tmp_path / "s2", log=None)
 
 
-def test_aedat4_without_poses_or_events_is_refused(src, tmp_path):
+def test_aedat4_without_poses_is_event_only_and_without_events_is_refused(src, tmp_path):
     rec = write_aedat4(tmp_path / "rec.aedat4", src.ev, size=size_of(src))
-    with pytest.raises(ImportFailure, match=r"rec.aedat4: \(streams\): poses: no TRAJECTORY given and the file has "
-                                            "no pose stream"):
-        import_scene("aedat4", [rec], tmp_path / "scene", camera=str(src.cam_json), log=None)
+    res = import_scene("aedat4", [rec], tmp_path / "events_only", camera=str(src.cam_json), log=None)
+    assert res["events_only"] and res["n_poses"] == 0 and res["objects"] == []       # issue 26.4
+    assert_events_equal(read_scene(tmp_path / "events_only")[0], src.ev)
     bad = tmp_path / "text.aedat4"
     bad.write_text("not an AEDAT4 file\n" * 50)
     with pytest.raises(ImportFailure, match=r"text.aedat4: \(header\): version: .*not an AEDAT 4.0 file"):
@@ -302,14 +303,13 @@ def test_prophesee_sensor_size_from_the_header(src, tmp_path):
     assert any("sensor 640x480 px from the header's '% plugin_name hal_plugin_gen31_fx3'" in a
                for a in res["assumptions"]), res["assumptions"]
     assert_events_equal(read_scene(tmp_path / "s5")[0], ev0)
-    # a cut-off last word is a warning; a trajectory is required
+    # a cut-off last word is a warning; without a trajectory the scene is event-only (issue 26.4)
     cut = tmp_path / "cut.raw"
     cut.write_bytes(data[:-1])
     res = import_scene("prophesee", [cut, csv, src.cam_json], tmp_path / "s3", log=None)
     assert any("not a whole 2-byte EVT3 word" in w for w in res["warnings"])
-    with pytest.raises(ImportFailure, match=r"rec.raw: \(arguments\): TRAJECTORY: a Prophesee recording holds no "
-                                            "poses"):
-        import_scene("prophesee", [rec], tmp_path / "s4", camera=str(src.cam_json), log=None)
+    res = import_scene("prophesee", [rec], tmp_path / "s4", camera=str(src.cam_json), log=None)
+    assert res["events_only"] and not load_manifest(tmp_path / "s4").has_trajectory
 
 
 def test_evt3_time_low_stepping_back_is_kept_as_written_and_counted(src, tmp_path):

@@ -117,6 +117,19 @@ def test_evt3_packets_import_exactly_with_the_clock_prior_from_the_first_stamp(t
     assert any("clock prior" in a and "header.stamp" in a for a in report["assumptions"])
 
 
+def test_a_bag_alone_makes_an_event_only_scene_with_the_clock_prior(tmp_path, traj_and_cam):
+    """Issue 26.4: the drivers' bags hold no poses; without a TRAJECTORY the scene is event-only (calibration by
+    --camera), its events exact and its clock prior already there for the trajectory added later."""
+    _, cam = traj_and_cam
+    packets, want = _evt3_packets()
+    bag = _write_bag(tmp_path / "bag", packets, encoding="evt3")
+    res = import_scene("ros-events", [bag], tmp_path / "s", camera=str(cam), log=None)
+    assert res["events_only"] and res["n_poses"] == 0
+    np.testing.assert_array_equal(_events(tmp_path / "s"), want)
+    manifest = (tmp_path / "s" / "scene.toml").read_text()
+    assert "[trajectory]" not in manifest and f"offset_us = {STAMP0_NS // 1000 - int(want[0, 2])}" in manifest
+
+
 def test_mono_packets_and_a_metadata_without_storage(tmp_path, traj_and_cam):
     """``mono`` packets (libcaer_driver); the bag's metadata.yaml names no storage (as event_camera_py's MCAP test
     bag: rosbags refused it with "Storage plugin '' not supported"): read by the file suffix, nothing left behind."""
@@ -154,8 +167,8 @@ def test_refusals_are_one_line(tmp_path, traj_and_cam):
     mcap.write_bytes(b"\x89MCAP0\r\n")
     with pytest.raises(ImportFailure, match=r"bare.mcap: \(file\): SRC: a bare .mcap file"):
         import_scene("ros-events", [mcap, traj, cam], tmp_path / "s4", log=None)
-    with pytest.raises(ImportFailure, match=r"give BAG TRAJECTORY \[CALIB\]"):
-        import_scene("ros-events", [two], tmp_path / "s5", log=None)
+    with pytest.raises(ImportFailure, match=r"give BAG \[TRAJECTORY \[CALIB\]\]"):
+        import_scene("ros-events", [two, traj, cam, cam], tmp_path / "s5", log=None)
     assert not any((tmp_path / f"s{k}").exists() for k in (1, 3, 4, 5))
 
 

@@ -78,10 +78,12 @@ def digest(paths) -> dict:
 
 
 def read_scene(out: Path):
+    """``(events, trajectory (None for an event-only scene), manifest, import report)`` of an imported scene."""
     man = load_manifest(out)
     with EventStore(man.events_path) as es:
         ev = es.read(0, es.n_events)
-    return ev, Trajectory.load_csv(man.trajectory_path), man, json.loads((out / REPORT_FILENAME).read_text())
+    traj = Trajectory.load_csv(man.trajectory_path) if man.has_trajectory else None
+    return ev, traj, man, json.loads((out / REPORT_FILENAME).read_text())
 
 
 def assert_events_equal(a, b):
