@@ -93,7 +93,9 @@ class Controller(QtCore.QObject):
             for w in caught:
                 if not issubclass(w.category, CorrectionsWarning):
                     warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-            _ = session.scene.events.n_events, session.scene.trajectory  # fail now, not at first draw
+            _ = session.scene.events.n_events   # fail now, not at first draw
+            if session.scene.has_poses:
+                _ = session.scene.trajectory
         except (InputError, OSError) as exc:     # bad input, or the system refused a read
             self.error("Cannot open the scene", str(exc))
             self.window.settings.remove_recent(path)

@@ -68,7 +68,10 @@ def scene_row(path: str, defaults) -> dict:
         info = scene_info(scene)
         windows = build_windows(scene.events, window_us=TRIAGE_WINDOW_US)
         t_label_us = np.array([w.t_label_us for w in windows], np.int64)
-        no_pose = sum(r is not None for r in scene.unlabeled_reasons(t_label_us)) if len(windows) else 0
+        if not scene.has_poses:                      # an event-only scene: no window has a label
+            no_pose = len(windows)
+        else:
+            no_pose = sum(r is not None for r in scene.unlabeled_reasons(t_label_us)) if len(windows) else 0
         review = review_progress(scene, TRIAGE_WINDOW_US, windows)     # the same tiling, built once
     finally:
         scene.close()

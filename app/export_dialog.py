@@ -78,7 +78,8 @@ class ExportDialog(QtWidgets.QDialog):
         form = QtWidgets.QFormLayout(self)
         self.fmt = QtWidgets.QComboBox()
         for key, text in FORMATS:
-            self.fmt.addItem(text, key)
+            if key == "h5" or scene.has_poses:      # labels need a trajectory: h5 alone for an event-only scene
+                self.fmt.addItem(text, key)
         self.fmt.setCurrentIndex(max(self.fmt.findData(saved.get("fmt", "epose")), 0))
         self.out = QtWidgets.QLineEdit(default_out_dir(scene, self.fmt.currentData()))
         self._default_out = self.out.text()

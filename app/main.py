@@ -72,6 +72,19 @@ def app_icon():
     return icon
 
 
+def _needs_raster(scene: str | None) -> bool:
+    """False when ``scene`` is an event-only scene (no trajectory, no objects): nothing will be rasterised. Any
+    other case (no scene yet, a scene that does not open: its error comes later, once) says True."""
+    if scene is None:
+        return True
+    try:
+        from evpose.core.data.manifest_reader import load_manifest
+
+        return load_manifest(scene, check_files=False).has_trajectory
+    except Exception:            # reported when the window opens the scene
+        return True
+
+
 def _warm_up_in_background() -> None:
     """Load (or compile, on the very first start) the rasteriser's kernels in a background thread, so the
     first frame does not pay for them (issue 14: 0.5 s from the disk cache, ~10 s to compile)."""
@@ -108,7 +121,8 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     QtCore.QCoreApplication.setApplicationName("evpose")
     app = QtWidgets.QApplication.instance() or QtWidgets.QApplication(sys.argv[:1])
     app.setWindowIcon(app_icon())
-    _warm_up_in_background()
+    if dataset or _needs_raster(scene):
+        _warm_up_in_background()
     window = MainWindow()
     unattended = screenshot is not None or quit_after is not None
     window.modal_dialogs = not unattended

@@ -9,6 +9,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from evpose.app import actions as A
 from evpose.app import frame_actions
+from evpose.app import events_only
 from evpose.app import layout as L
 from evpose.app.residual_feed import ResidualFeed
 from evpose.app.wheel_guard import install_wheel_guard
@@ -283,6 +284,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.disk_watcher = CorrectionsWatcher(session.scene.corrections_path, self)
         self.disk_watcher.changed.connect(self.controller.on_disk_change)
         self._set_document_actions_enabled(True)
+        if not session.scene.has_poses:
+            events_only.apply(self)          # pose tools off, with the reason where they were
         self._sync_view_actions()
         self.setWindowTitle(f"evpose — {session.scene.name}[*]")
         self.undo_bridge.sync()

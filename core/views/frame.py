@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from evpose.core.data.events import EventArray
+from evpose.core.data.manifest import EVENTS_ONLY
 from evpose.core.data.scene import Scene
 from evpose.core.label import represent
 from evpose.core.label.event_frames.counts import polarity_counts
@@ -161,6 +162,9 @@ class FrameComputer(WindowReader):
         cam = scene.camera
         w = view.window()
         ev = self._window_events(scene, w.t0_us, w.t1_us)
+        if not scene.has_poses:                # an event-only scene: events, no labels (and no rasteriser)
+            return FrameData(w, len(ev), None, None, WindowLabels(w, False, EVENTS_ONLY), None,
+                             compute_ms=(time.perf_counter() - t_start) * 1e3)
         ann = self._annotator_for(scene)
         labels = ann.annotate(w)
         yield None
@@ -199,7 +203,7 @@ class FrameComputer(WindowReader):
         if self._last_overlay is None:
             return False
         req, step_us = self._last_overlay
-        if step_us == 0 or abs(step_us) > MAX_PREFETCH_STEP_WINDOWS * req.view.window_us:
+        if not req.scene.has_poses or step_us == 0 or abs(step_us) > MAX_PREFETCH_STEP_WINDOWS * req.view.window_us:
             return False
         t_next = req.view.t_us + step_us
         store = req.scene.events

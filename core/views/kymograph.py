@@ -179,14 +179,15 @@ class KymographComputer(WindowReader):
         t_ext0 = tc - half - lag_us
         ev = self._window_events(scene, t_ext0, t_ext0 + n_ext * BIN_US)
         yield None
-        ann = self._annotator(scene)
         times = slice_times(tc - half, 2 * half + 1, TRACK_SAMPLES, view.grid_origin_us)
-        T_co, T_bc, valid = ann.poses(times)
-        maps = []
-        for i, t in enumerate(times):
-            maps.append(self.maps.label_map(ann, int(t), T_co[i], T_bc[i]) if valid[i] else None)
-            if i % 8 == 7:
-                yield None
+        maps = [None] * len(times)            # an event-only scene: the events along the line, no tracks
+        if scene.has_poses:
+            ann = self._annotator(scene)
+            T_co, T_bc, valid = ann.poses(times)
+            for i, t in enumerate(times):
+                maps[i] = self.maps.label_map(ann, int(t), T_co[i], T_bc[i]) if valid[i] else None
+                if i % 8 == 7:
+                    yield None
         span = SpanData(ev, t_ext0, n_ext, tc, times, maps, list(scene.object_names), frozenset(view.hidden))
         data = KymographData(tc, KymoLine(0, 0, 0, 0), req.line is None, 2 * half, BIN_US / 1e3, -half / 1e3,
                              np.zeros((0, 0), np.uint16), np.zeros((0, 0), np.uint16), np.zeros((0, 0, 3), np.uint8))

@@ -104,14 +104,15 @@ class SpaceTimeComputer(WindowReader):
         pts[:, 0] = ev.x
         pts[:, 1] = ev.y
         pts[:, 2] = (ev.t - view.t_us).astype(np.float32) * 1e-3
-        times = slice_times(t0, span, view.spacetime_slices, view.grid_origin_us)
-        ann = self._slices_annotator(scene)
-        T_co, T_bc, valid = ann.poses(times)
         slices = []
-        for i, t in enumerate(times):
-            if valid[i]:
-                slices.append((int(t), self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])))
-            yield None
+        if scene.has_poses:                  # an event-only scene: the cloud alone
+            times = slice_times(t0, span, view.spacetime_slices, view.grid_origin_us)
+            ann = self._slices_annotator(scene)
+            T_co, T_bc, valid = ann.poses(times)
+            for i, t in enumerate(times):
+                if valid[i]:
+                    slices.append((int(t), self.slice_cache.slice(ann, int(t), T_co[i], T_bc[i])))
+                yield None
         names = scene.object_names
         colors = tuple(object_color(k) for k in range(len(names)))
         tubes, surfaces = tubes_and_surfaces(slices, names, view.hidden, colors, view.t_us, self.surface_cache)
@@ -125,7 +126,7 @@ class SpaceTimeComputer(WindowReader):
         (both ways before any motion), for an idle worker: ``should_stop()`` is checked before every slice.
         Returns the slices computed."""
         req = self._last_spacetime
-        if req is None or self._motion is None or self._motion[0] is not req.scene.events:
+        if req is None or not req.scene.has_poses or self._motion is None or self._motion[0] is not req.scene.events:
             return 0
         scene, view = req.scene, req.view
         span, w = int(view.spacetime_span_us), int(view.window_us)

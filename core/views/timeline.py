@@ -31,6 +31,10 @@ def timeline_data(scene: Scene, bin_us: int = TIMELINE_BIN_US) -> TimelineData:
     t_bins, counts = scene.events.rate(bin_us)
     t_ref = scene.t_ref_us
     centres = t_bins + bin_us // 2
+    if not scene.has_poses:                  # an event-only scene: the rate alone
+        none = np.zeros(len(centres))
+        return TimelineData(t_ref, (centres - t_ref) * 1e-6, counts * (1e6 / bin_us), none, none.copy(),
+                            np.zeros(len(centres), bool))
     t_pose = scene.clock.pose_time(centres) if len(centres) else centres
     v, w, valid = scene.trajectory.speed(t_pose) if len(centres) else (np.zeros(0),) * 3
     holes = [((h["t0_us"] - t_ref) * 1e-6, (h["t1_us"] - t_ref) * 1e-6)
