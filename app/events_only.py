@@ -46,8 +46,11 @@ def apply(window) -> None:
     if right is not None and right.layout() is not None:
         right.layout().insertWidget(0, banner)
     window.events_only_banner = banner
-    if window.timeline is not None:                 # the score row: scores need labels
+    if window.timeline is not None:                 # the score row: scores need labels; no speed without poses
         for w in (window.timeline.scores_check, window.timeline.worst_button):
             w.setEnabled(False)
             w.setToolTip(REASON)
+        window.timeline.show_pose_curves(False)
+    if window.spacetime is not None:                # no silhouettes: no band
+        window.spacetime.show_band_controls(False)
     window.statusBar().showMessage(EVENTS_ONLY, 10_000)

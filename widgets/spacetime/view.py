@@ -116,6 +116,12 @@ class SpaceTimeView(QtWidgets.QWidget):
         self.tube_layer = TubeLayer(self.root, self.upload_counts)
         self.legend = Legend(self)
 
+    def show_band_controls(self, on: bool) -> None:
+        """Show the band's controls and the objects' legend (off for an event-only scene: no silhouettes)."""
+        c = self.controls
+        for w in (c.by_object_check, c.band_spin, c.band_label, self.legend.label):
+            w.setVisible(on)
+
     def _build_controls(self) -> None:
         """The control rows under the canvas; their widgets are also attributes of the view."""
         c = self.controls = SpaceTimeControls()

@@ -96,15 +96,17 @@ def label_style(color=(0, 0, 0), pt: int = 8) -> dict:
     return {"color": pg.mkColor(color).name(), "font-size": f"{pt}pt"}
 
 
-def legend_html() -> str:
-    """Key of the curves and review colours (shown in the control row, leaving the plot its height)."""
+def legend_html(poses: bool = True) -> str:
+    """Key of the curves and review colours (shown in the control row, leaving the plot its height); without
+    ``poses`` (an event-only scene) the event rate alone."""
     def hexc(c):
         return pg.mkColor(c).name()
 
-    parts = [f"<span style='color:{hexc(RATE_COLOR)}'>&#9632;</span>&nbsp;event rate",
-             f"<span style='color:{hexc(SPEED_COLOR)}'><b>&#8212;</b></span>&nbsp;speed",
-             f"<span style='color:{hexc(ANGULAR_COLOR)}'><b>&#8212;</b></span>&nbsp;angular"]
-    parts += [f"<span style='color:{hexc(c)}'>&#9608;</span>&nbsp;{s}" for s, c in STATUS_COLORS.items()]
+    parts = [f"<span style='color:{hexc(RATE_COLOR)}'>&#9632;</span>&nbsp;event rate"]
+    if poses:
+        parts += [f"<span style='color:{hexc(SPEED_COLOR)}'><b>&#8212;</b></span>&nbsp;speed",
+                  f"<span style='color:{hexc(ANGULAR_COLOR)}'><b>&#8212;</b></span>&nbsp;angular"]
+        parts += [f"<span style='color:{hexc(c)}'>&#9608;</span>&nbsp;{s}" for s, c in STATUS_COLORS.items()]
     return "&nbsp;&nbsp; ".join(parts)
 
 

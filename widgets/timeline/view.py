@@ -37,7 +37,7 @@ from evpose.widgets.timeline.playback import Playback
 from evpose.widgets.timeline.plot import RatePlot
 from evpose.widgets.timeline.scores import ScoreRow
 from evpose.widgets.timeline.scrub import Scrubber
-from evpose.widgets.timeline.style import MIN_PLOT_H, MIN_SCORE_H
+from evpose.widgets.timeline.style import MIN_PLOT_H, MIN_SCORE_H, legend_html
 
 MIN_X_RANGE_S = 0.005            # deepest zoom: 5 ms across the plot
 
@@ -161,6 +161,14 @@ class Timeline(QtWidgets.QWidget):
         t = time.perf_counter()
         data = timeline_data(self.session.scene, BIN_US)
         self.set_data(data, self.clock_key(), (time.perf_counter() - t) * 1e3)
+
+    def show_pose_curves(self, on: bool) -> None:
+        """Show the camera's speed curves, their axes and the review colours in the legend (off for an event-only
+        scene: it has no poses and no review marks)."""
+        r = self.rate_plot
+        for item in (r.speed_item, r.angular_item, r.plot.getAxis("right"), r.angular_axis):
+            item.setVisible(on)
+        self.legend.setText(legend_html(on))
 
     def set_data(self, data: TimelineData, clock_key=None, compute_ms: float | None = None) -> None:
         """Display whole-sequence curves computed in core (see :func:`evpose.core.views.timeline.timeline_data`),
