@@ -124,9 +124,11 @@ def test_roundtrip_int64(tmp_path, compression, start):
     with h5py.File(path) as f:
         assert f["events/t"].dtype == np.int64 and f["ms_to_idx"].dtype == np.int64
         off = int(f["t_offset"][()])
-        # relative clocks are stored absolute; epoch and negative times relative to the first event
-        assert off == (0 if start == 123_456 else int(ev.t[0]))
+        # relative clocks from the first event's whole ms (issue 26.5: the index follows the recording's duration,
+        # not its start on the sensor clock; bins on whole ms as with 0); epoch and negative times from the first event
+        assert off == ((int(ev.t[0]) // 1000) * 1000 if start == 123_456 else int(ev.t[0]))
         np.testing.assert_array_equal(f["ms_to_idx"][()], oracle_ms_index(ev.t - off))
+        assert len(f["ms_to_idx"]) <= (int(ev.t[-1]) - int(ev.t[0])) // 1000 + 3
     with EventStore(path) as s:
         assert (s.n_events, s.t_first_us, s.t_last_us, s.t_offset_us) == (len(ev), ev.t[0], ev.t[-1], off)
         assert_same(s.read(0, len(ev)), ev)
