@@ -22,13 +22,17 @@ RESIDUAL_KINDS = {"time", "document", "objects", "view"}
 
 
 def _compute(req):
+    """The window's residuals and the sweep of the selected object (the first shown one when none is selected)."""
     from evpose.core.views.residuals import residuals
+    from evpose.core.views.sweep import silhouette_sweep
 
     t = time.perf_counter()
     w = req.view.window()
     names = [n for n in req.scene.object_names if n not in req.view.hidden]
     data = residuals(req.scene, w.t0_us, w.t1_us, names=names)
-    return data, 1000.0 * (time.perf_counter() - t)
+    name = req.view.selected if req.view.selected in names else (names[0] if names else None)
+    sweep = silhouette_sweep(req.scene, name, int(req.view.t_us)) if name is not None else None
+    return data, sweep, 1000.0 * (time.perf_counter() - t)
 
 
 class ResidualFeed(QtCore.QObject):
@@ -90,8 +94,14 @@ class ResidualFeed(QtCore.QObject):
 
     def _ready(self, result, serial: int) -> None:
         if self.view is not None:
-            data, ms = result
+            data, sweep, ms = result
             self.view.set_data(data, ms)
+            color = None
+            if sweep is not None and self.session is not None and sweep.name in self.session.scene.object_names:
+                from evpose.core.label.overlay import object_color
+
+                color = object_color(list(self.session.scene.object_names).index(sweep.name))
+            self.view.sweep.set_data(sweep, *(() if color is None else (color,)))
 
     def _failed(self, message: str, serial: int) -> None:
         if self.view is not None:

@@ -17,6 +17,7 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
 from evpose.core.views.residuals import ResidualData, residual_rgb
+from evpose.widgets.sweep_view import SweepView
 
 __all__ = ["ResidualView", "LEGEND"]
 
@@ -56,12 +57,15 @@ class ResidualView(QtWidgets.QWidget):
                               "error (a jackknife over 8 stretches of the outline)")
         self.status = QtWidgets.QLabel("")
         self.status.setWordWrap(True)
+        #: the selected object swept over a span, from the top and the side (widgets/sweep_view.py)
+        self.sweep = SweepView()
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(2, 2, 2, 2)
         lay.addWidget(self.plot, 1)
         lay.addWidget(self.legend)
         lay.addWidget(self.table)
         lay.addWidget(self.status)
+        lay.addWidget(self.sweep, 1)
 
     def set_data(self, data: ResidualData, compute_ms: float | None = None) -> None:
         """Show ``data`` (a :class:`~evpose.core.views.residuals.ResidualData`)."""
