@@ -29,8 +29,9 @@ def _shut_down(app, window) -> None:
     process (exit 134, "QThread: Destroyed while thread ... is still running") at interpreter exit."""
     if window.isVisible():
         window.close()                  # closeEvent stops the frame / space-time workers
-    window.feeds.stop()
-    window.residual_feed.stop()
+    for feeds in (getattr(window, "feeds", None), getattr(window, "residual_feed", None)):
+        if feeds is not None:
+            feeds.stop()
     app.processEvents()
 
 

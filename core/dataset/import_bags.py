@@ -166,7 +166,8 @@ def completed_import(out, bag) -> dict | None:
         raise DatasetError(f"{out}: imported from {bag} before the bag changed (size or time differs); remove "
                            "the scene folder to import it again")
     return {"scene": str(out.absolute()), "format": FORMAT, "n_events": rep.get("counts", {}).get("events_written"),
-            "n_poses": rep.get("trajectory", {}).get("n"), "objects": list(rep.get("objects", {})),
+            "n_poses": rep.get("trajectory", {}).get("n"), "events_only": bool(rep.get("events_only")),
+            "objects": list(rep.get("objects", {})),
             "report": str(out.absolute() / REPORT_FILENAME), "assumptions": rep.get("assumptions", []),
             "repairs": rep.get("repairs", []), "warnings": rep.get("warnings", []),
             "runtime_s": rep.get("runtime_s"), "skipped": True}
