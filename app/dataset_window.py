@@ -170,6 +170,9 @@ class DatasetWindow(QtWidgets.QMainWindow):
     """The table of ``dataset``'s scenes; ``main`` is the :class:`~evpose.app.main_window.MainWindow` that
     opens a scene when its row is double-clicked."""
 
+    #: event windows of each scene's joint fit in Refine (dry run); None: ``evpose refine --joint``'s default
+    refine_windows: int | None = None
+
     def __init__(self, main, dataset: Dataset):
         super().__init__(None)
         self.main = main
@@ -356,9 +359,10 @@ class DatasetWindow(QtWidgets.QMainWindow):
             def run(client, progress, cancel):
                 return export_dataset(client, dataset, export["fmt"], export["out"], progress=progress, cancel=cancel)
         else:
+            refine = JointRunOptions(apply=False, windows=self.refine_windows or JointRunOptions.windows)
             fn, args = {"score": (score_task, (TRIAGE_WINDOW_US,)), "sync": (sync_task, (SyncOptions(apply=False),)),
                         "triage": (triage_task, (SyncOptions(apply=False, edges=self.edges_check.isChecked()),)),
-                        "refine": (refine_task, (JointRunOptions(apply=False),))}[kind]
+                        "refine": (refine_task, (refine,))}[kind]
 
             def run(client, progress, cancel):
                 return map_scenes(client, dataset, fn, *args, label=kind, progress=progress, cancel=cancel)

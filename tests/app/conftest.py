@@ -25,11 +25,19 @@ def window(qtbot, tmp_path, monkeypatch):
 
 @pytest.fixture(scope="session")
 def demo_scene_dir(tmp_path_factory):
-    """``evpose demo``'s scene (35 ms clock error, every pose 5 mm / 3 deg off), built once per test session
-    (about 1 min); never modify it (copy it)."""
+    """``evpose demo``'s scene (35 ms clock error, every pose 5 mm / 3 deg off), built once per test run (about
+    1 min) and shared by the run's xdist workers (built under a lock in the run's folder: two test files use it,
+    and the workers used to build it once each); never modify it (copy it)."""
+    import fcntl
+
     from evpose.app.cli.synth import ensure_demo_scene
 
-    return ensure_demo_scene(tmp_path_factory.mktemp("demo") / "demo_scene", quiet=True)
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent                  # pytest-N/, the parent of every worker's popen-gwK/
+    with open(shared / "demo_scene.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)        # the first worker builds it; the other waits, then finds it
+        return ensure_demo_scene(shared / "demo_shared" / "demo_scene", quiet=True)
 
 
 @pytest.fixture

@@ -247,6 +247,7 @@ def test_refine_dry_run_then_apply_and_reject_in_the_detail_pane(qtbot, dwin, da
 
     dwin.last_triage = {"scenes_ranked": [{"scene": "s2", "cause": "clock", "rank": 1, "reasons": [], "next": ""},
                                           {"scene": "s1", "cause": "object", "rank": 2, "reasons": [], "next": ""}]}
+    dwin.refine_windows = 12          # as the CLI tests of the joint fit (24 by default): half the time
     job = dwin.run_batch("refine", workers=1)
     assert job is not None and not dwin.refine_action.isEnabled()
     qtbot.waitUntil(lambda: dwin.batch_job is None, timeout=300_000)
