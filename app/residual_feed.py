@@ -21,18 +21,35 @@ __all__ = ["ResidualFeed", "RESIDUAL_KINDS"]
 RESIDUAL_KINDS = {"time", "document", "objects", "view"}
 
 
-def _compute(req):
-    """The window's residuals and the sweep of the selected object (the first shown one when none is selected)."""
-    from evpose.core.views.residuals import residuals
-    from evpose.core.views.sweep import silhouette_sweep
+class _Compute:
+    """The window's residuals and the sweep of the selected object (the first shown one when none is selected), on
+    the feed's worker; the sweep's annotator (mesh geometry) is kept for the scene between requests."""
 
-    t = time.perf_counter()
-    w = req.view.window()
-    names = [n for n in req.scene.object_names if n not in req.view.hidden]
-    data = residuals(req.scene, w.t0_us, w.t1_us, names=names)
-    name = req.view.selected if req.view.selected in names else (names[0] if names else None)
-    sweep = silhouette_sweep(req.scene, name, int(req.view.t_us)) if name is not None else None
-    return data, sweep, 1000.0 * (time.perf_counter() - t)
+    def __init__(self):
+        self._ann, self._key = None, None
+
+    def _annotator(self, scene):
+        from evpose.core.label.annotate import Annotator
+        from evpose.core.views.spacetime_slices import SLICE_REQUEST
+
+        if self._ann is None or self._key != id(scene.manifest):
+            self._ann, self._key = Annotator(scene, SLICE_REQUEST), id(scene.manifest)
+        self._ann.scene = scene
+        return self._ann
+
+    def __call__(self, req):
+        from evpose.core.views.residuals import residuals
+        from evpose.core.views.sweep import silhouette_sweep
+
+        t = time.perf_counter()
+        w = req.view.window()
+        names = [n for n in req.scene.object_names if n not in req.view.hidden]
+        data = residuals(req.scene, w.t0_us, w.t1_us, names=names)
+        name = req.view.selected if req.view.selected in names else (names[0] if names else None)
+        sweep = None
+        if name is not None:
+            sweep = silhouette_sweep(req.scene, name, int(req.view.t_us), annotator=self._annotator(req.scene))
+        return data, sweep, 1000.0 * (time.perf_counter() - t)
 
 
 class ResidualFeed(QtCore.QObject):
@@ -46,7 +63,7 @@ class ResidualFeed(QtCore.QObject):
         self.view = None
         self.dock: QtWidgets.QDockWidget | None = None
         self._connection = None
-        self.feed = ViewFeed(self, "residual-worker", _compute, self._ready, make_request=self._request,
+        self.feed = ViewFeed(self, "residual-worker", _Compute(), self._ready, make_request=self._request,
                              in_sight=self.in_sight, on_failed=self._failed)
 
     def attach(self, session, add_dock, tab_with: QtWidgets.QDockWidget) -> QtWidgets.QDockWidget:

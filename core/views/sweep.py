@@ -113,11 +113,12 @@ def silhouette_sweep(scene, name: str, t_center_us: int, span_us: int = DEFAULT_
         j = np.where(np.abs(ev.t - ts[j - 1]) <= np.abs(ev.t - ts[j]), j - 1, j)
     x, y = ev.x.astype(np.int64), ev.y.astype(np.int64)
     near = np.zeros(len(ev), bool)
+    bounds = np.searchsorted(j, np.arange(len(flds) + 1))   # events are time-sorted: each slice's are one run
     for i, f in enumerate(flds):
-        sel = np.flatnonzero(j == i)
+        sel = slice(bounds[i], bounds[i + 1])
         r, c = y[sel] - f.y0, x[sel] - f.x0
         inside = (r >= 0) & (r < f.sd.shape[0]) & (c >= 0) & (c < f.sd.shape[1])
-        sd = np.full(len(sel), np.inf)
+        sd = np.full(len(r), np.inf)
         sd[inside] = np.abs(f.sd[r[inside], c[inside]].astype(np.float64)) / FIELD_SCALE
         near[sel] = sd <= edge_px
     b = np.clip(((ev.t - t0) * n_bins) // int(span_us), 0, n_bins - 1).astype(np.int64)
