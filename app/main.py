@@ -114,9 +114,10 @@ def run_gui(scene: str | None = None, *, screenshot: str | None = None, quit_aft
     from PySide6 import QtCore, QtWidgets
 
     from evpose.app.main_window import MainWindow
-    from evpose.app.qt_compat import guard_pyside_refcount_leak
+    from evpose.app.qt_compat import guard_pyside_refcount_leak, share_gl_contexts
 
     guard_pyside_refcount_leak()
+    share_gl_contexts()         # a floated dock's GL view keeps its buffers
 
     QtCore.QCoreApplication.setOrganizationName("evpose")
     QtCore.QCoreApplication.setApplicationName("evpose")

@@ -32,3 +32,14 @@ def guard_pyside_refcount_leak() -> bool:
         ctypes.c_ssize_t.from_address(id(obj)).value += 1 << 40
     _applied = True
     return True
+
+
+def share_gl_contexts() -> None:
+    """Share OpenGL resources between every GL widget of the application (``Qt.AA_ShareOpenGLContexts``; must be set
+    before the ``QApplication`` exists). A ``QOpenGLWidget`` moved to another top-level window — a dock floated or
+    docked again — gets a new context; without sharing, the space-time view's vispy buffers and programs belonged to
+    the old one, and the floated view drew nothing but OpenGL errors until docked again."""
+    from PySide6 import QtCore
+
+    if QtCore.QCoreApplication.instance() is None:
+        QtCore.QCoreApplication.setAttribute(QtCore.Qt.AA_ShareOpenGLContexts)

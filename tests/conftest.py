@@ -20,9 +20,10 @@ def pytest_configure(config):
             os.environ["EVPOSE_TEST_OFFSCREEN"] = "1"
     elif os.environ.pop("EVPOSE_TEST_OFFSCREEN", None):
         os.environ.pop("QT_QPA_PLATFORM", None)
-    from evpose.app.qt_compat import guard_pyside_refcount_leak
+    from evpose.app.qt_compat import guard_pyside_refcount_leak, share_gl_contexts
 
     guard_pyside_refcount_leak()
+    share_gl_contexts()
 
 
 REPO = Path(__file__).resolve().parents[1]
