@@ -41,8 +41,10 @@ from evpose.core.views.spacetime_slices import SLICE_REQUEST, slice_key, slice_t
 
 #: Edge tracks are sampled at this many times over the span (a step of 4 ms over the default 200 ms).
 TRACK_SAMPLES = 50
-#: The label maps kept for the tracks (int8, one per track time and pose set): at most this many bytes.
-LABEL_CACHE_BYTES = 48 << 20
+#: The label maps kept for the tracks (int8, one per track time and pose set): at most this many bytes. A span's 50
+#: maps of a DAVIS346 hold 4.4 MB, so this keeps two or three spans (a step back, the pose before a nudge); at 48 MB
+#: it was the largest cache at rest after bench_memory's 10-minute session (47.6 MB, full).
+LABEL_CACHE_BYTES = 12 << 20
 #: Event colours of the image (RGB): dark, so the objects' coloured tracks stand out; ON warm, OFF cool.
 ON_RGB, OFF_RGB = (150, 40, 40), (40, 60, 150)
 #: Events per bin at which a bin's colour saturates.
