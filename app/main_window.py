@@ -2,7 +2,6 @@
 docks; menus and shortcuts from :mod:`app.actions`; frames computed off the GUI thread."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from PySide6 import QtCore, QtGui, QtWidgets
