@@ -390,6 +390,13 @@ def test_dataset_refine_dry_run_touches_nothing_and_apply_equals_the_single_scen
     assert all(not any(c["part"] == "clock" for c in d["changes"]) for d in again.values())
 
 
+def _terminal_sigint() -> None:
+    """In the child before exec: SIGINT as a shell gives it (default action, not blocked), whatever the test
+    process's workers and threads did to their own (the disposition SIG_IGN and the signal mask are inherited)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _same_as_reference(out, reference_epose) -> None:
     for name, ref in reference_epose.items():
         got = tree(out / name)
@@ -409,7 +416,7 @@ def test_ctrl_c_stops_the_export_and_its_cluster_and_a_rerun_completes(tiny_data
         args = [sys.executable, "-m", "evpose", "dataset", "export", str(tiny_dataset), "--format", "epose",
                 "--out", str(out), "--workers", "2"]
         proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True)
+                                start_new_session=True, preexec_fn=_terminal_sigint)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and not any(out.glob("*/*_data.mat")):
             time.sleep(0.01)
