@@ -66,6 +66,18 @@ def _flock(fd: int, flags: int) -> bool:
     return True
 
 
+def try_lock_folder(path) -> int | None:
+    """An exclusive, non-blocking ``flock`` on the folder ``path``: the open descriptor (close it to release the
+    lock), or None when another open file holds it (on a file system without flock the lock is not enforced)."""
+    import fcntl
+
+    fd = os.open(path, os.O_RDONLY)
+    if _flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB):
+        return fd
+    os.close(fd)
+    return None
+
+
 def open_locked_temp(path) -> tuple[Path, int]:
     """Create a new temporary file beside ``path`` (read-write) and lock it (``flock`` exclusive).
 

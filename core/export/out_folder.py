@@ -79,16 +79,11 @@ def check_export_out(out_dir, scene) -> Path:
 def lock_folder(out_dir: Path) -> int:
     """An exclusive ``flock`` on the output folder for the whole run: a second export into the same
     folder (another process or thread) is refused instead of mixing files or deleting live temp files."""
-    fd = os.open(out_dir, os.O_RDONLY)
-    try:
-        import fcntl
+    from evpose.core.data.temp_files import try_lock_folder
 
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except ImportError:  # pragma: no cover - not POSIX
-        pass
-    except OSError:
-        os.close(fd)
-        raise ExportError(f"{out_dir}: --out: another export is writing into this folder") from None
+    fd = try_lock_folder(out_dir)
+    if fd is None:
+        raise ExportError(f"{out_dir}: --out: another export is writing into this folder")
     return fd
 
 

@@ -84,24 +84,22 @@ class SceneEdit:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is not None:
+        if exc_type is not None:               # undo: only files this edit created and nobody replaced since
             for p in reversed(self._created):
-                with contextlib.suppress(OSError):
-                    p.unlink()
+                if self._ours(p):
+                    with contextlib.suppress(OSError):
+                        p.unlink()
         if self._log is not None:
             self._log.close()
         self._unlock()
 
     def _lock(self) -> None:
-        import fcntl
+        from evpose.core.data.temp_files import try_lock_folder
 
-        self._fd = os.open(self.root, os.O_RDONLY)
-        try:
-            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self._unlock()
+        self._fd = try_lock_folder(self.root)
+        if self._fd is None:
             raise SceneError(self.path, "", "another evpose command is changing this scene folder; try again when "
-                             "it is done") from None
+                             "it is done")
 
     def _unlock(self) -> None:
         if self._fd is not None:
