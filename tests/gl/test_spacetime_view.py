@@ -245,6 +245,7 @@ def test_lean_points_draw_the_same_pixels_as_stock_markers(qtbot, session, monke
     mixed = sheet(session, 1, n=30_000, seed=5)
     mixed.polarity[::2] = 0
     images = {}
+    monkeypatch.setattr(SpaceTimeView, "step_coarse_s", 0.0)     # every set_data drawn in full (no stepping)
     for lean in (True, False):
         monkeypatch.setattr(SpaceTimeView, "lean_upload", lean)
         w = SpaceTimeView(session)
@@ -289,6 +290,28 @@ def test_coarse_subset_while_the_camera_moves(qtbot, view, session):
     idx, n_lod = draw_order(len(d.points), view.point_layer.stride)
     t_lod = d.points[idx[:n_lod], 2]
     assert n_lod <= LOD_POINTS and t_lod.min() < -40 and t_lod.max() > 40
+
+
+def test_steps_in_quick_succession_draw_the_coarse_subset_then_all(qtbot, view, session):
+    """Data arriving while the user steps (within ``step_coarse_s`` of the last) is drawn with the coarse,
+    time-uniform subset; all points follow ``LOD_IDLE_MS`` after the last step. A step after a pause is drawn in
+    full at once."""
+    from evpose.widgets.spacetime.points import LOD_POINTS
+    from evpose.widgets.spacetime.view import LOD_IDLE_MS
+
+    a, b = sheet(session, 1, n=200_000, seed=3), sheet(session, 1, n=200_000, seed=4)
+    view.step_coarse_s = 60.0                   # any two set_data calls of the test count as stepping
+    view.set_data(a)
+    assert not view._interacting and view.markers._index_buffer is None       # the first: in full
+    view.set_data(b)
+    assert view._interacting and 0 < view.markers._index_buffer.size <= LOD_POINTS
+    coarse = render(qtbot, view)
+    qtbot.waitUntil(lambda: not view._interacting, timeout=LOD_IDLE_MS * 20)
+    assert view.markers._index_buffer is None
+    assert reddish(coarse).sum() < reddish(render(qtbot, view)).sum()
+    view.step_coarse_s = 0.0                    # a pause longer than the threshold: drawn in full at once
+    view.set_data(a)
+    assert not view._interacting and view.markers._index_buffer is None
 
 
 def test_deleted_with_its_parent_ignores_late_data(qtbot, session):

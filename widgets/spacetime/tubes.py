@@ -1,6 +1,7 @@
 """The objects' tubes in the space-time view: each object's projected silhouettes stacked along t as
 closed polylines, all objects in one ``Line`` visual (segment pairs) over a white casing, and the translucent
-skin joining consecutive silhouettes (core's ``SpaceTimeData.surfaces``) in one ``Mesh`` visual.
+skin joining consecutive silhouettes (core's ``SpaceTimeData.surfaces``) in one lean triangle visual
+(:func:`surface_node_class`).
 
 A clock offset between the event camera and the pose source shows as a *shear* between these tubes
 (built from the labelled poses) and the event sheets a moving edge sweeps.
@@ -72,6 +73,71 @@ def surface_mesh(surfaces, hidden, alpha: float = SURFACE_ALPHA):
     return np.concatenate(verts), np.concatenate(faces), np.concatenate(cols)
 
 
+#: The skin's shaders: a vertex's position through the scene's transforms and its own RGBA colour, nothing else.
+SURFACE_VERTEX_SHADER = """
+attribute vec3 a_position;
+attribute vec4 a_color;
+varying vec4 v_color;
+void main() {
+    gl_Position = $transform(vec4(a_position, 1.0));
+    v_color = a_color;
+}
+"""
+SURFACE_FRAGMENT_SHADER = """
+varying vec4 v_color;
+void main() {
+    gl_FragColor = v_color;
+}
+"""
+
+_SURFACE_NODE: list = []
+
+
+def surface_node_class():
+    """The skin's visual node class: unlit triangles with per-vertex colours whose vertex, colour and index
+    buffers are updated in place. vispy's ``Mesh.set_data`` builds a new colour transform function and a new
+    colormap texture on every call, so each step of the view recompiled the mesh's program (14 ms of a
+    136 ms step on bench/.data/ycb_5obj_5s under Xvfb); this one compiles once."""
+    if not _SURFACE_NODE:
+        from vispy.gloo import IndexBuffer, VertexBuffer
+        from vispy.scene.visuals import create_visual_node
+        from vispy.visuals import Visual
+
+        class SurfaceVisual(Visual):
+            def __init__(self, **kwargs):
+                self._pos_vbo = VertexBuffer(np.zeros((1, 3), np.float32))
+                self._col_vbo = VertexBuffer(np.zeros((1, 4), np.float32))
+                self._ibo = IndexBuffer(np.zeros(3, np.uint32))
+                self._pos = None
+                Visual.__init__(self, vcode=SURFACE_VERTEX_SHADER, fcode=SURFACE_FRAGMENT_SHADER, **kwargs)
+                self._draw_mode = "triangles"
+                self._index_buffer = self._ibo
+                self.shared_program["a_position"] = self._pos_vbo
+                self.shared_program["a_color"] = self._col_vbo
+
+            def set_data(self, vertices, faces, vertex_colors) -> None:
+                """(V, 3) float32 positions, (F, 3) triangles, (V, 4) RGBA in [0, 1]."""
+                self._pos = np.ascontiguousarray(vertices, np.float32)
+                self._pos_vbo.set_data(self._pos)
+                self._col_vbo.set_data(np.ascontiguousarray(vertex_colors, np.float32))
+                self._ibo.set_data(np.ascontiguousarray(faces, np.uint32).ravel())
+                self.update()
+
+            def _prepare_transforms(self, view) -> None:
+                view.view_program.vert["transform"] = view.get_transform()
+
+            def _prepare_draw(self, view) -> bool:
+                return self._pos is not None and len(self._pos) > 0
+
+            def _compute_bounds(self, axis, view):
+                if self._pos is None or not len(self._pos):
+                    return None
+                return (float(self._pos[:, axis].min()), float(self._pos[:, axis].max()))
+
+        _SURFACE_NODE.append(create_visual_node(SurfaceVisual))
+    return _SURFACE_NODE[0]
+
+
 class TubeLayer:
     """The tube, casing and surface visuals; ``upload_counts["tubes"]`` counts the uploads."""
 
@@ -90,7 +156,7 @@ class TubeLayer:
         self.line.set_gl_state("translucent", depth_test=False)
         self.line.order = ORDER_TUBES
         self.line.visible = False
-        self.surface = scene.visuals.Mesh(parent=parent)
+        self.surface = surface_node_class()(parent=parent)
         self.surface.set_gl_state("translucent", depth_test=False, cull_face=False)
         self.surface.order = ORDER_SURFACES
         self.surface.visible = False

@@ -30,6 +30,8 @@ in the band.
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import shiboken6
 from PySide6 import QtCore, QtWidgets
@@ -48,6 +50,10 @@ from evpose.widgets.spacetime.tubes import TubeLayer
 
 #: After a wheel step, the coarse subset is drawn for this long (ms) before all points again.
 LOD_IDLE_MS = 250
+#: New data within this long (s) of the last (stepping, playing, scrubbing) is drawn with the coarse subset
+#: first; all points follow ``LOD_IDLE_MS`` after the last step. On software OpenGL the full 300k-point budget
+#: costs ~120 ms a frame on bench/.data/ycb_5obj_5s, the coarse subset ~40 ms.
+STEP_COARSE_S = 0.4
 
 
 class SpaceTimeView(QtWidgets.QWidget):
@@ -63,6 +69,8 @@ class SpaceTimeView(QtWidgets.QWidget):
 
     #: Use the lean event upload when vispy's shader allows it (class switch for benchmarks and tests).
     lean_upload = True
+    #: Data arriving within this long (s) of the last counts as stepping (drawn coarse first; benchmarks set it).
+    step_coarse_s = STEP_COARSE_S
     #: The "Kymograph…" button: the owner shows the kymograph view (an x-t slice along a drawn line).
     kymographRequested = QtCore.Signal()
 
@@ -77,6 +85,8 @@ class SpaceTimeView(QtWidgets.QWidget):
         self._surfaces_all: list = []
         self._drawn_settings = None
         self._interacting = False
+        self._mouse_down = False
+        self._last_data_s = -1e9        # perf_counter of the last set_data
         self._closed = False
         #: Buffer uploads since construction (``points``, ``polarity``, ``tubes``, ``cage``, ``slab``, ``lod``):
         #: tests and the benchmark check that only changed buffers go to the GPU.
@@ -190,6 +200,11 @@ class SpaceTimeView(QtWidgets.QWidget):
         self._data = data
         if not self._alive():
             return      # closed or deleted with its parent: a late worker result has nowhere to go
+        now = time.perf_counter()
+        if now - self._last_data_s < self.step_coarse_s and not self._mouse_down:
+            self._interacting = True             # stepping: the coarse subset now, all points once it stops
+            self._lod_timer.start()
+        self._last_data_s = now
         self._set_points(data)
         self._tubes_all = list(data.tubes)
         self._surfaces_all = list(getattr(data, "surfaces", ()))
@@ -327,9 +342,12 @@ class SpaceTimeView(QtWidgets.QWidget):
 
     def _on_mouse_press(self, event) -> None:
         self._preset = None       # the user moves the camera: stop re-framing on resize
+        self._mouse_down = True
+        self._lod_timer.stop()
         self.set_interacting(True)
 
     def _on_mouse_release(self, event) -> None:
+        self._mouse_down = False
         self.set_interacting(False)
 
     def _on_mouse_wheel(self, event) -> None:
