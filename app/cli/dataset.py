@@ -45,6 +45,13 @@ def _finish(args, result, text: str) -> int:
     """Print the result (one JSON document with ``--json``) and a line per failed scene on stderr."""
     for name, err in result.failed.items():
         print(f"evpose dataset {args.action}: {name}: failed: {err}", file=sys.stderr)
+    lost = (result.cluster or {}).get("lost_workers") or []
+    if lost:               # the output is the same (Dask reran their tasks), but a dying worker is worth knowing
+        rerun = result.cluster.get("rerun_tasks", {})
+        print(f"evpose dataset {args.action}: {len(lost)} worker(s) lost during the run ({', '.join(lost)}); "
+              f"{sum(rerun.values())} task(s) rerun elsewhere"
+              + (f" ({', '.join(f'{s}: {n}' for s, n in rerun.items())})" if rerun else "")
+              + "; the results are complete", file=sys.stderr)
     emit(args, result.to_json(), text)
     return EXIT_PARTIAL if result.failed else 0
 

@@ -23,14 +23,20 @@ class BatchResult:
     scenes: dict = field(default_factory=dict)       # name -> the single-scene document, in dataset order
     failed: dict = field(default_factory=dict)       # name -> one-line error
     runtime_s: float = 0.0
+    #: workers lost and tasks rerun meanwhile (:meth:`ClusterEvents.summary
+    #: <evpose.core.dataset.cluster_events.ClusterEvents.summary>`; None: not on a cluster)
+    cluster: dict | None = None
 
     def to_json(self) -> dict:
-        return {"dataset": self.dataset, "scenes": self.scenes, "failed": self.failed, "runtime_s": self.runtime_s}
+        doc = {"dataset": self.dataset, "scenes": self.scenes, "failed": self.failed, "runtime_s": self.runtime_s}
+        if self.cluster is not None:
+            doc["cluster"] = self.cluster
+        return doc
 
     def ordered(self, names: list[str]) -> "BatchResult":
         """The same result with ``scenes`` and ``failed`` in dataset order."""
         return BatchResult(self.dataset, {n: self.scenes[n] for n in names if n in self.scenes},
-                           {n: self.failed[n] for n in names if n in self.failed}, self.runtime_s)
+                           {n: self.failed[n] for n in names if n in self.failed}, self.runtime_s, self.cluster)
 
 
 def failure_text(exc: BaseException) -> str:
@@ -55,11 +61,16 @@ def map_scenes(client, dataset, fn: Callable, *args, label: str = "task",
     """
     from distributed import as_completed
 
+    from evpose.core.dataset.cluster_events import ClusterEvents
+
     t0 = time.perf_counter()
     result = BatchResult(dataset.name)
+    events = ClusterEvents(client)
     defaults = dataset.defaults or None
     futures = {client.submit(fn, str(ref.path), defaults, *args, pure=False, key=f"{label}-{ref.name}-{_token()}"):
                ref.name for ref in dataset.scenes}
+    for fut, name in futures.items():
+        events.track(fut.key, name)
     n = len(futures)
     try:
         if progress is not None:
@@ -71,12 +82,16 @@ def map_scenes(client, dataset, fn: Callable, *args, label: str = "task",
             except Exception as exc:        # one scene's failure is reported, the others go on
                 result.failed[name] = failure_text(exc)
             if progress is not None:
-                progress(k / n, f"{k}/{n} scenes, {len(result.failed)} failed")
+                events.poll()
+                lost = events.text()
+                progress(k / n, f"{k}/{n} scenes, {len(result.failed)} failed" + (f", {lost}" if lost else ""))
             if cancel is not None and cancel():
                 raise Cancelled(f"{dataset.root}: {label} cancelled after {k} of {n} scenes")
     finally:
         client.cancel([f for f in futures if not f.done()])
     result.runtime_s = time.perf_counter() - t0
+    events.poll(force=True)
+    result.cluster = events.summary()
     return result.ordered([ref.name for ref in dataset.scenes])
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from pathlib import Path
 
 from evpose.core.data.events import Cancelled
 from evpose.core.export.pool import WindowExecutor, run_worker_chunk
@@ -56,9 +57,11 @@ def run_chunk(spec: WorkerSpec, key: str, tasks: list) -> tuple[list, dict]:
 class DaskWindows(WindowExecutor):
     """Run chunks of windows on the workers of a ``distributed.Client``."""
 
-    def __init__(self, client, *, retries: int = 0):
+    def __init__(self, client, *, retries: int = 0, events=None):
         self.client = client
         self.retries = retries        # besides Dask's own rescheduling of tasks of a lost worker
+        #: a :class:`~evpose.core.dataset.cluster_events.ClusterEvents` told each chunk's key and scene (optional)
+        self.events = events
         self._lock = threading.Lock()
         self._pending: set = set()
         self._stopped = False
@@ -84,6 +87,10 @@ class DaskWindows(WindowExecutor):
             futures = [self.client.submit(run_chunk, spec, key, chunk, pure=False, retries=self.retries)
                        for chunk in chunks]
             self._pending.update(futures)
+        if self.events is not None:
+            scene = Path(spec.out_dir).name           # the dataset export writes each scene to OUT/<scene name>
+            for f in futures:
+                self.events.track(f.key, scene)
         try:
             for future in as_completed(futures):
                 if future.cancelled() or self._stopped:

@@ -31,6 +31,7 @@ from evpose.core.data.events import Cancelled
 from evpose.core.data.owned_files import check_out_path, held_input
 from evpose.core.dataset.batch import BatchResult, failure_text
 from evpose.core.dataset.bop_dataset import BOP_DIR, assemble_bop, check_models
+from evpose.core.dataset.cluster_events import ClusterEvents
 from evpose.core.dataset.dask_windows import DaskWindows
 from evpose.core.errors import NotOursError
 
@@ -54,14 +55,17 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
     stop = threading.Event()
     fractions = dict.fromkeys((ref.name for ref in dataset.scenes), 0.0)
     lock = threading.Lock()
-    executor = DaskWindows(client)
+    events = ClusterEvents(client)
+    executor = DaskWindows(client, events=events)
 
     def report():
         if progress is not None:
+            events.poll()
             with lock:
                 done = sum(fractions.values()) / max(len(fractions), 1)
                 text = f"{sum(1 for f in fractions.values() if f >= 1.0)}/{len(fractions)} scenes, {len(result.failed)} failed"
-            progress(done, text)
+            lost = events.text()
+            progress(done, text + (f", {lost}" if lost else ""))
 
     def one(ref):
         if stop.is_set():
@@ -100,6 +104,9 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+    if client is not None:
+        events.poll(force=True)
+        result.cluster = events.summary()
     if fmt == "bop":
         names = [ref.name for ref in dataset.scenes]
         done = [n for n in names if n in result.scenes]

@@ -156,8 +156,16 @@ def test_a_killed_worker_gives_the_same_export(dask_client, tiny_dataset, refere
             killed.set()
             os.kill(pids[0], signal.SIGKILL)        # mid-chunk: Dask reruns its tasks on the other worker
 
-    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out", progress=progress)
+    lines = []
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out",
+                         progress=lambda f, msg="": (lines.append(msg), progress(f, msg)))
     assert killed.is_set() and res.failed == {}
+    # the user is told (issue 27.6): the lost worker in the summary and the --json document, the chunks it was
+    # running counted as rerun under their scenes, and the progress line says so once the scheduler noticed
+    lost = res.to_json()["cluster"]
+    assert len(lost["lost_workers"]) == 1, lost
+    assert sum(lost["rerun_tasks"].values()) >= 1 and set(lost["rerun_tasks"]) <= set(reference_epose), lost
+    assert any("1 worker(s) lost" in m for m in lines), lines[-3:]
     for name, ref in reference_epose.items():
         got = tree(tmp_path / "out" / name)
         assert got.keys() == ref.keys(), name
