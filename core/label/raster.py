@@ -105,6 +105,79 @@ _NO_FACE = np.zeros(0, dtype=np.int32)      # kernel argument: no face index wan
 _PARALLEL_MIN_FACES = 20_000
 
 
+#: Bytes of derived mesh arrays kept by :data:`MESH_ARRAYS` (5 YCB meshes, raster-friendly: ~8 MB).
+MESH_CACHE_BYTES = 48 << 20
+
+
+class MeshArrayCache:
+    """Arrays derived from read-only mesh arrays (transposed faces, homogeneous float32 vertices), by kind and the
+    source array's identity while it lives, least recently used first out beyond ``max_bytes``.
+
+    One instance (:data:`MESH_ARRAYS`) serves every :class:`Rasterizer` of the process: the app's views each have
+    an annotator of the same scene meshes (the frame, the space-time slices, the kymograph, the residual sweep),
+    and the derived arrays depend on the mesh only, not on the camera. An entry goes when its source array is
+    freed (weak reference), so a closed scene's arrays are not kept. Thread-safe."""
+
+    def __init__(self, max_bytes: int = MESH_CACHE_BYTES):
+        self.max_bytes = int(max_bytes)
+        self._items: dict = {}          # (kind, id(arr)) -> (weakref, value, nbytes), insertion = recency order
+        self._lock = threading.RLock()  # a weakref callback may run inside a locked section (gc on allocation)
+        self.nbytes = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+            self.nbytes = 0
+
+    def _drop(self, key, ref=None) -> None:
+        with self._lock:
+            item = self._items.get(key)
+            if item is not None and (ref is None or item[0] is ref):
+                del self._items[key]
+                self.nbytes -= item[2]
+
+    def get(self, arr: np.ndarray, kind: str, make):
+        """``make(arr)``, from the cache when ``arr`` is read-only and weak-referenceable, else computed."""
+        if arr.flags.writeable:
+            return make(arr)
+        key = (kind, id(arr))
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None and hit[0]() is arr:
+                self._items[key] = self._items.pop(key)          # most recently used
+                return hit[1]
+        val = make(arr)
+        try:
+            ref = weakref.ref(arr, lambda r, key=key: self._drop(key, r))
+        except TypeError:                       # not weak-referenceable: do not cache
+            return val
+        nb = _derived_nbytes(val)
+        if nb > self.max_bytes:
+            return val
+        with self._lock:
+            self._drop(key)
+            self._items[key] = (ref, val, nb)
+            self.nbytes += nb
+            while self.nbytes > self.max_bytes:
+                self._drop(next(iter(self._items)))
+        return val
+
+
+def _derived_nbytes(val) -> int:
+    if isinstance(val, np.ndarray):
+        return int(val.nbytes)
+    if isinstance(val, tuple):
+        return sum(_derived_nbytes(v) for v in val)
+    return 0
+
+
+#: The process's one :class:`MeshArrayCache`.
+MESH_ARRAYS = MeshArrayCache()
+
+
 # ---------------------------------------------------------------------------- result
 @dataclass
 class RasterResult:
@@ -569,8 +642,8 @@ class Rasterizer:
         self._offsets = {s: (np.arange(s)[:, None] * W + np.arange(s)[None, :]).reshape(-1, 1) for s in (2, 3)}
         self._offsets["3x2"] = (np.arange(2)[:, None] * W + np.arange(3)[None, :]).reshape(-1, 1)
         self._offsets["2x3"] = (np.arange(3)[:, None] * W + np.arange(2)[None, :]).reshape(-1, 1)
-        self._cache: dict[tuple, tuple] = {}
-        self._cache_lock = threading.Lock()
+        #: the derived mesh arrays, shared by every rasteriser of the process (:class:`MeshArrayCache`)
+        self._cache = MESH_ARRAYS
         self.timings: dict[str, float] = {}
         self._timings_lock = threading.Lock()
 
@@ -718,23 +791,8 @@ class Rasterizer:
 
     def _cached(self, arr: np.ndarray, kind: str, make):
         """``make(arr)``, cached per ``kind`` while ``arr`` lives if it is read-only (its content
-        cannot change; :class:`ObjectModel` arrays are read-only). Thread-safe."""
-        if arr.flags.writeable:
-            return make(arr)
-        key = (kind, id(arr))
-        hit = self._cache.get(key)
-        if hit is not None and hit[0]() is arr:
-            return hit[1]
-        val = make(arr)
-        try:
-            ref = weakref.ref(arr)
-        except TypeError:                       # not weak-referenceable: do not cache
-            return val
-        with self._cache_lock:
-            if len(self._cache) >= 128:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = (ref, val)
-        return val
+        cannot change; :class:`ObjectModel` arrays are read-only), in :data:`MESH_ARRAYS`. Thread-safe."""
+        return self._cache.get(arr, kind, make)
 
     def _all_front(self, vs: _VertexStage, zv: np.ndarray | None = None) -> bool:
         """Every vertex beyond the near plane (float32, as the vertex stage decides): then the camera is

@@ -25,8 +25,9 @@ FIELD_SCALE = 4.0
 FAR = np.int8(127)
 #: Default band half-width (px) of the events drawn in their object's colour.
 DEFAULT_BAND_PX = 3.0
-#: Merged fields kept by :class:`MergedFieldCache` (about 180 kB each on a DAVIS346: two spans and the prefetch).
-MERGED_CACHE_ITEMS = 40
+#: Bytes of merged fields kept by :class:`MergedFieldCache` (180 kB each on a DAVIS346: 46 of them, two spans
+#: and the prefetch; 1.8 MB each on a 1280 x 720 sensor).
+MERGED_CACHE_BYTES = 8 << 20
 
 
 @dataclass(frozen=True)
@@ -152,29 +153,42 @@ def value_ref(value):
         return lambda: value
 
 
-def drop_dead(items: OrderedDict) -> None:
+def drop_dead(items: OrderedDict) -> int:
     """Remove the entries of a derived cache whose slice values are gone (``entry[0]`` a :func:`value_ref`, or a
-    tuple of them)."""
+    tuple of them; ``entry[1]`` the derived data); returns the bytes of the arrays removed."""
     dead = [k for k, v in items.items() if any(r() is None for r in (v[0] if isinstance(v[0], tuple) else (v[0],)))]
+    nb = 0
     for k in dead:
-        del items[k]
+        nb += derived_nbytes(items.pop(k)[1])
+    return nb
+
+
+def derived_nbytes(value) -> int:
+    """Bytes of the arrays in ``value`` (an array, or a tuple / list of them)."""
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, (tuple, list)):
+        return sum(derived_nbytes(v) for v in value)
+    return 0
 
 
 class MergedFieldCache:
     """The merged fields of silhouette slices, ``(H, W, 2)`` int8 (signed distance, object), by slice value
     (the cached slice list itself: the same object for the same time and poses; recognised by identity, not
     kept alive: the fields of a slice the slice cache dropped go with it) and hidden objects; least recently used
-    first out beyond ``max_items``."""
+    first out beyond ``max_bytes`` (:attr:`nbytes`; a field larger than that alone is not kept)."""
 
-    def __init__(self, max_items: int = MERGED_CACHE_ITEMS):
-        self.max_items = int(max_items)
+    def __init__(self, max_bytes: int = MERGED_CACHE_BYTES):
+        self.max_bytes = int(max_bytes)
         self._items: OrderedDict = OrderedDict()
+        self.nbytes = 0
 
     def __len__(self) -> int:
         return len(self._items)
 
     def clear(self) -> None:
         self._items.clear()
+        self.nbytes = 0
 
     def merged(self, value: list, names: list, hidden, height: int, width: int) -> np.ndarray:
         """The merged field of one slice's value ``[(name, in_view, contours, field)]`` without ``hidden``."""
@@ -186,11 +200,15 @@ class MergedFieldCache:
         shown = {n: k for k, n in enumerate(names) if n not in hidden}
         sd, obj = merged_field([(shown[n], f) for n, _, _, f in value if f is not None and n in shown], height, width)
         pair = np.stack([sd, obj], axis=-1)
-        drop_dead(self._items)                    # fields of slices the slice cache dropped
-        self._items[key] = (value_ref(value), pair)   # not kept alive by this cache; a reused id fails the check
-        self._items.move_to_end(key)
-        while len(self._items) > self.max_items:
-            self._items.popitem(last=False)
+        self.nbytes -= drop_dead(self._items)     # fields of slices the slice cache dropped
+        old = self._items.pop(key, None)          # a reused id of a dead value
+        if old is not None:
+            self.nbytes -= old[1].nbytes
+        if pair.nbytes <= self.max_bytes:
+            self._items[key] = (value_ref(value), pair)   # not kept alive by this cache; a reused id fails the check
+            self.nbytes += pair.nbytes
+        while self.nbytes > self.max_bytes:
+            self.nbytes -= self._items.popitem(last=False)[1][1].nbytes
         return pair
 
 
@@ -201,7 +219,7 @@ def events_band(ev, slices: list, names: list, hidden, width: int, height: int,
     fields come from (and go to) ``cache`` when given."""
     if not slices or len(ev) == 0:
         return np.full(len(ev), np.inf, np.float32), np.full(len(ev), -1, np.int8)
-    cache = cache if cache is not None else MergedFieldCache(len(slices))
+    cache = cache if cache is not None else MergedFieldCache()
     fields = [cache.merged(value, names, hidden, height, width) for _, value in slices]
     t = np.array([s[0] for s in slices], np.int64)
     return event_edge_distance(ev.x, ev.y, ev.t, t, fields)

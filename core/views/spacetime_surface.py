@@ -12,14 +12,15 @@ from collections import OrderedDict
 
 import numpy as np
 
-from evpose.core.views.spacetime_band import drop_dead, value_ref
+from evpose.core.views.spacetime_band import derived_nbytes, drop_dead, value_ref
 
 #: Points per resampled contour ring.
 RING_POINTS = 48
 #: Contours shorter than this (px) are not joined (specks).
 MIN_RING_LENGTH_PX = 6.0
-#: Joined slice pairs kept by :class:`SurfaceCache` (per object; a span has ``slices - 1`` per object).
-SURFACE_CACHE_ITEMS = 256
+#: Bytes of joined slice pairs kept by :class:`SurfaceCache` (a pair of five YCB objects' rings: 1-4 kB; a span has
+#: ``slices - 1`` pairs per object).
+SURFACE_CACHE_BYTES = 2 << 20
 
 
 def resample_ring(contour: np.ndarray, n: int = RING_POINTS) -> np.ndarray | None:
@@ -96,14 +97,19 @@ def joined_rings(contours_a: list, contours_b: list) -> tuple[np.ndarray, np.nda
 class SurfaceCache:
     """:func:`joined_rings` by the two slices' values (the cached slice lists: the same objects for the same
     times and poses; recognised by identity, not kept alive: the rings of a slice the slice cache dropped go
-    with it) and the object; least recently used first out beyond ``max_items``."""
+    with it) and the object; least recently used first out beyond ``max_bytes`` (:attr:`nbytes`)."""
 
-    def __init__(self, max_items: int = SURFACE_CACHE_ITEMS):
-        self.max_items = int(max_items)
+    def __init__(self, max_bytes: int = SURFACE_CACHE_BYTES):
+        self.max_bytes = int(max_bytes)
         self._items: OrderedDict = OrderedDict()
+        self.nbytes = 0
 
     def __len__(self) -> int:
         return len(self._items)
+
+    def clear(self) -> None:
+        self._items.clear()
+        self.nbytes = 0
 
     def joined(self, value_a: list, value_b: list, name: str, contours_a: list, contours_b: list):
         key = (id(value_a), id(value_b), name)
@@ -112,11 +118,16 @@ class SurfaceCache:
             self._items.move_to_end(key)
             return hit[1]
         rings = joined_rings(contours_a, contours_b)
-        drop_dead(self._items)                            # rings of slices the slice cache dropped
-        self._items[key] = ((value_ref(value_a), value_ref(value_b)), rings)   # not kept alive by this cache
-        self._items.move_to_end(key)
-        while len(self._items) > self.max_items:
-            self._items.popitem(last=False)
+        self.nbytes -= drop_dead(self._items)             # rings of slices the slice cache dropped
+        old = self._items.pop(key, None)                  # reused ids of dead values
+        if old is not None:
+            self.nbytes -= derived_nbytes(old[1])
+        nb = derived_nbytes(rings)
+        if nb <= self.max_bytes:
+            self._items[key] = ((value_ref(value_a), value_ref(value_b)), rings)   # not kept alive by this cache
+            self.nbytes += nb
+        while self.nbytes > self.max_bytes:
+            self.nbytes -= derived_nbytes(self._items.popitem(last=False)[1][1])
         return rings
 
 

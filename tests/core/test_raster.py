@@ -367,3 +367,35 @@ def test_random_triangles_match_open3d(raster, davis, coords, depth, dz):
     _, obj, _ = o3d_cast(davis, [(V, F)])
     ours, ref = res.obj_index == 0, obj == 0
     assert np.count_nonzero(ours != ref) <= 3, (np.count_nonzero(ours & ~ref), np.count_nonzero(ref & ~ours))
+
+
+def test_rasterisers_share_one_byte_bounded_cache_of_derived_mesh_arrays():
+    """Issue 25.4: the app's four annotators of one scene (frame, space-time slices, kymograph, residual sweep)
+    derive the same arrays from the same read-only meshes: one cache holds them once, within its byte bound, and
+    an entry goes with its mesh."""
+    import gc
+
+    from evpose.core.label.raster import MESH_ARRAYS, MeshArrayCache
+
+    a = np.arange(3000, dtype=np.float64).reshape(-1, 3)
+    a.setflags(write=False)
+    cache = MeshArrayCache(max_bytes=3 * a.nbytes)
+    made = []
+
+    def make(x):
+        made.append(1)
+        return x * 2.0
+
+    first = cache.get(a, "twice", make)
+    assert cache.get(a, "twice", make) is first and len(made) == 1 and cache.nbytes == a.nbytes
+    others = [np.full_like(a, k) for k in range(4)]
+    for o in others:
+        o.setflags(write=False)
+        cache.get(o, "twice", make)
+    assert cache.nbytes <= 3 * a.nbytes and len(cache) == 3           # least recently used out
+    del others, o
+    gc.collect()
+    assert len(cache) == 0 and cache.nbytes == 0                      # entries go with their arrays
+    w = np.ones((4, 3))                                               # writable: never cached
+    assert cache.get(w, "twice", make) is not cache.get(w, "twice", make)
+    assert Rasterizer(CameraModel.davis346())._cache is Rasterizer(CameraModel.davis346())._cache is MESH_ARRAYS
