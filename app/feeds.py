@@ -25,6 +25,13 @@ __all__ = ["ViewFeeds", "SPACETIME_DEBOUNCE_MS"]
 
 #: the space-time view and the kymograph follow once scrubbing pauses: they must not slow the frame
 SPACETIME_DEBOUNCE_MS = 250
+#: decoded event blocks kept by the idle release (the most recently used: the window on screen and its neighbours)
+IDLE_EVENT_BYTES = 1 << 20
+
+
+def _shown(widget) -> bool:
+    """True while some of ``widget`` (None: no such view) can be seen: not closed, not a tab behind another."""
+    return widget is not None and not widget.isHidden() and not widget.visibleRegion().isEmpty()
 
 
 def _timeline(req):
@@ -70,10 +77,29 @@ class ViewFeeds(QtCore.QObject):
         self.timeline = ViewFeed(self, "timeline-worker", _timeline, self._timeline_ready,
                                  make_request=self._timeline_request, on_failed=failed)   # the widget debounces
         self.spacetime_dock = None
+        #: the computers whose caches the idle release empties (:meth:`idle_release_tasks`), by feed
+        self._computers = {"frame": overlay_fc, "spacetime": spacetime_fc, "kymograph": kymograph_kc}
 
     @property
     def all(self) -> tuple[ViewFeed, ...]:
         return self.events, self.frame, self.spacetime, self.kymograph, self.timeline
+
+    # ------------------------------------------------------------------ memory
+    def idle_release_tasks(self) -> list:
+        """What the app's idle release (:class:`~evpose.app.memory.IdleReleaser`) empties, as ``(worker, fn)`` pairs
+        (``fn`` runs on the worker's thread between requests; worker None: at once): the work done ahead of the user
+        (the overlays of the next window; the decoded event blocks, all but the most recently used
+        :data:`IDLE_EVENT_BYTES`), and the caches and annotators of the space-time view and the kymograph while they
+        are out of sight (a closed dock, a tab behind another, a minimised window). All are made again on
+        demand: the worker prefetches again after the next request, a view coming into sight computes what it needs."""
+        c = self._computers
+        tasks = [(None, lambda: self.event_cache.shrink(IDLE_EVENT_BYTES)),
+                 (self.frame.worker, c["frame"].release_prefetched)]
+        if not _shown(self.spacetime_dock):
+            tasks.append((self.spacetime.worker, c["spacetime"].release_caches))
+        if not _shown(self.window.kymograph):
+            tasks.append((self.kymograph.worker, c["kymograph"].release_caches))
+        return tasks
 
     # ------------------------------------------------------------------ requests
     def _session_request(self):

@@ -12,11 +12,15 @@ Two holders of dead memory, measured with ``bench/bench_memory.py`` on the 5-obj
   and ``linecache`` keeps it: ~900 modules, 18 MB of text (~30 MB with the line objects). Only tracebacks
   use it, and they read the lines again when needed.
 
-:class:`IdleReleaser` does both once nothing has happened for :data:`IDLE_MS` (every session change restarts
-the count), so the work never lands in the middle of scrubbing. Two things keep them from growing in the first place,
-both done by ``evpose gui`` before the window exists (:func:`evpose.app.startup.prepare_process`, which imports no
-Qt):
+A third holder is the views' own caches (tracker issue 25.4): what the workers computed ahead of the user (the
+overlays of the next window, decoded event blocks) and what the views out of sight keep for their next request (the
+space-time view's silhouette slices, fields and surfaces, the kymograph's label maps, their annotators). All of it is
+made again on demand.
 
+:class:`IdleReleaser` acts once nothing has happened for :data:`IDLE_MS` (every session change and the end of every
+background job restarts the count), so the work never lands in the middle of scrubbing: it empties those caches, each
+on its worker's thread between requests (``tasks``: see :meth:`evpose.app.feeds.ViewFeeds.idle_release_tasks`), then
+collects cycles (``gc.collect``) and :func:`release_memory`. Two things keep memory from growing in the first place,
 * :func:`~evpose.app.startup.configure_malloc`: a fixed mmap threshold (256 KiB) so that large temporaries (event
   windows, frames, the space-time points) are mapped and unmapped instead of fragmenting the heap (glibc otherwise
   raises its threshold to 32 MB after the first large free), and at most 2 malloc arenas (one per
@@ -28,11 +32,14 @@ Qt):
 """
 from __future__ import annotations
 
+import gc
 import linecache
+import traceback
 
 from PySide6 import QtCore
 
 from evpose.app.startup import libc
+from evpose.app.workers import JOB_EVENTS
 
 #: Quiet time after the last session change before memory is released, ms.
 IDLE_MS = 2000
@@ -52,18 +59,66 @@ def release_memory() -> bool:
 
 
 class IdleReleaser(QtCore.QObject):
-    """Calls :func:`release_memory` once the app has been idle for ``idle_ms`` after the last :meth:`poke`."""
+    """Once the app has been idle for ``idle_ms`` after the last :meth:`poke` (or the end of a background job,
+    :data:`~evpose.app.workers.JOB_EVENTS`): runs ``tasks()`` -- ``[(worker, fn)]``, each ``fn`` on its
+    :class:`~evpose.app.workers.LatestWorker`'s thread between requests (``worker`` None: at once) -- then, when
+    all have run, ``gc.collect()`` and :func:`release_memory`. ``releases`` counts the completed releases."""
 
-    def __init__(self, parent=None, idle_ms: int = IDLE_MS):
+    def __init__(self, parent=None, idle_ms: int = IDLE_MS, tasks=None):
         super().__init__(parent)
         self.releases = 0
+        self._tasks = tasks
+        self._pending = 0
+        self._connected: set[int] = set()
+        #: what the last release's tasks returned (bytes dropped, by the tasks that return a number)
+        self.last_released: list = []
         self.timer = QtCore.QTimer(self, singleShot=True, interval=int(idle_ms))
         self.timer.timeout.connect(self._release)
+        JOB_EVENTS.ended.connect(self.poke)
 
     def poke(self) -> None:
         """Something happened: (re)start the quiet period."""
         self.timer.start()
 
     def _release(self) -> None:
+        self.last_released = []
+        posted = 0
+        for worker, fn in (self._tasks() if self._tasks is not None else ()):
+            if worker is None:
+                self.last_released.append(fn())
+                continue
+            if id(worker) not in self._connected:
+                worker.called.connect(self._task_done)
+                self._connected.add(id(worker))
+            worker.call_soon(_Task(self, fn))
+            posted += 1
+        self._pending += posted
+        if self._pending == 0:
+            self._give_back()
+
+    def _task_done(self, result) -> None:
+        if not (isinstance(result, tuple) and len(result) == 2 and result[0] is self) or self._pending == 0:
+            return                                          # another caller's call_soon
+        self.last_released.append(result[1])
+        self._pending -= 1
+        if self._pending == 0:
+            self._give_back()
+
+    def _give_back(self) -> None:
+        gc.collect()
         release_memory()
         self.releases += 1
+
+
+class _Task:
+    """``fn()`` on a worker's thread, its result tagged with the releaser (``LatestWorker.called`` is shared)."""
+
+    def __init__(self, owner, fn):
+        self.owner, self.fn = owner, fn
+
+    def __call__(self):
+        try:
+            return self.owner, self.fn()
+        except Exception:       # reported, and counted as done: a failed task must not stop the release
+            traceback.print_exc()
+            return self.owner, None

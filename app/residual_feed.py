@@ -37,6 +37,10 @@ class _Compute:
         self._ann.scene = scene
         return self._ann
 
+    def release(self) -> None:
+        """Drop the annotator (the view is out of sight and the app idle; made again on demand, ~30 ms)."""
+        self._ann, self._key = None, None
+
     def __call__(self, req):
         from evpose.core.views.residuals import residuals
         from evpose.core.views.sweep import silhouette_sweep
@@ -63,7 +67,8 @@ class ResidualFeed(QtCore.QObject):
         self.view = None
         self.dock: QtWidgets.QDockWidget | None = None
         self._connection = None
-        self.feed = ViewFeed(self, "residual-worker", _Compute(), self._ready, make_request=self._request,
+        self._compute = _Compute()
+        self.feed = ViewFeed(self, "residual-worker", self._compute, self._ready, make_request=self._request,
                              in_sight=self.in_sight, on_failed=self._failed)
 
     def attach(self, session, add_dock, tab_with: QtWidgets.QDockWidget) -> QtWidgets.QDockWidget:
@@ -97,6 +102,11 @@ class ResidualFeed(QtCore.QObject):
 
     def in_sight(self) -> bool:
         return self.dock is not None and not self.dock.isHidden() and not self.dock.visibleRegion().isEmpty()
+
+    def idle_release_tasks(self) -> list:
+        """The idle release's task (see :meth:`evpose.app.feeds.ViewFeeds.idle_release_tasks`): the annotator is
+        dropped while the view is out of sight."""
+        return [] if self.in_sight() else [(self.feed.worker, self._compute.release)]
 
     def _on_change(self, change: Change) -> None:
         if change.kind in RESIDUAL_KINDS:

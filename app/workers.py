@@ -43,7 +43,10 @@ class LatestWorker(QtCore.QObject):
     done = QtCore.Signal(object, int)
     partial = QtCore.Signal(object, int)
     failed = QtCore.Signal(str, int)
+    #: the return value of a function run by :meth:`call_soon` (None when it raised; the traceback goes to ``failed``)
+    called = QtCore.Signal(object)
     _kick = QtCore.Signal()
+    _call = QtCore.Signal(object)
 
     def __init__(self, fn: Callable[[Any], Any], name: str = "worker", idle: Callable | None = None):
         super().__init__()
@@ -61,6 +64,7 @@ class LatestWorker(QtCore.QObject):
         self._thread.setObjectName(name)
         self.moveToThread(self._thread)
         self._kick.connect(self._run, QtCore.Qt.QueuedConnection)
+        self._call.connect(self._run_call, QtCore.Qt.QueuedConnection)
         self._thread.start()
 
     def submit(self, request) -> None:
@@ -70,6 +74,21 @@ class LatestWorker(QtCore.QObject):
                 self.replaced += 1
             self._pending = request
         self._kick.emit()
+
+    def call_soon(self, fn: Callable[[], Any]) -> None:
+        """Run ``fn()`` on the worker's thread between requests (after the current request and its idle work,
+        before any request submitted later): work on the computer's state that must not race with a computation,
+        e.g. emptying its caches. ``called`` reports the return value on the receiver's thread."""
+        self._call.emit(fn)
+
+    @QtCore.Slot(object)
+    def _run_call(self, fn) -> None:
+        try:
+            result = fn()
+        except Exception:  # reported, never a silent crash of the thread
+            self.failed.emit(traceback.format_exc(limit=6), 0)
+            result = None
+        self.called.emit(result)
 
     def superseded(self) -> bool:
         """True when a newer request waits (or the worker is stopping): the current one is stale."""
@@ -123,6 +142,15 @@ class LatestWorker(QtCore.QObject):
 _ABANDONED = object()
 
 
+class _JobEvents(QtCore.QObject):
+    #: a :class:`Job` has ended (finished, failed or cancelled), emitted after its own signals
+    ended = QtCore.Signal()
+
+
+#: Every :class:`Job`'s end, for the app's idle memory release (a job's temporaries are freed when it ends).
+JOB_EVENTS = _JobEvents()
+
+
 class _JobSignals(QtCore.QObject):
     progress = QtCore.Signal(float, str)
     finished = QtCore.Signal(object)
@@ -165,6 +193,8 @@ class Job(QtCore.QRunnable):
             self.signals.failed.emit(str(exc), traceback.format_exc(limit=8))
         else:
             self.signals.finished.emit(result)
+        finally:
+            JOB_EVENTS.ended.emit()
 
     def start(self) -> "Job":
         QtCore.QThreadPool.globalInstance().start(self)

@@ -289,8 +289,9 @@ def clear_view_caches(window) -> list[str]:
                 v._items.clear()
                 cleared.append(f"{name}.{k}._items")
             raster = getattr(v, "_raster", None) if cls == "Annotator" else None
-            if isinstance(getattr(raster, "_cache", None), dict):
-                raster._cache.clear()
+            rc = getattr(raster, "_cache", None)
+            if isinstance(rc, dict) or callable(getattr(rc, "clear", None)):   # one dict each, or the shared one
+                rc.clear()
                 cleared.append(f"{name}.{k}._raster._cache")
     cache = getattr(window, "event_cache", None)
     if cache is not None:

@@ -109,6 +109,19 @@ class EventChunkCache:
             self._store = None
             self.stats = CacheStats()
 
+    def shrink(self, max_bytes: int = 0) -> int:
+        """Drop the least recently used blocks until at most ``max_bytes`` are held (the app's idle release: the
+        blocks are read again when needed); the counters go on. Returns the bytes dropped."""
+        dropped = 0
+        with self._lock:
+            while self._blocks and self._nbytes > max_bytes:
+                k, ev = self._blocks.popitem(last=False)
+                self._unused_prefetch.discard(k)
+                nb = event_nbytes(ev)
+                self._nbytes -= nb
+                dropped += nb
+        return dropped
+
     # ------------------------------------------------------------------ blocks
     def _follow(self, store) -> None:
         """Called with the lock held: a new store drops the old one's blocks."""

@@ -195,6 +195,13 @@ class FrameComputer(WindowReader):
         return FrameData(w, len(ev), None, None, labels, mask_rgba, overlays, inside, scores,
                          (time.perf_counter() - t_start) * 1e3)
 
+    def release_prefetched(self) -> int:
+        """Drop the overlays computed ahead (:attr:`overlays_ahead`; the worker computes more only after the next
+        request). Call on the computer's own thread. Returns the bytes they held."""
+        nb = self.overlays_ahead.nbytes
+        self.overlays_ahead.clear()
+        return nb
+
     def prefetch_overlays(self, should_stop=lambda: False) -> bool:
         """Compute the overlays of the next window in the direction and step of the last two requests
         (at most :data:`MAX_PREFETCH_STEP_WINDOWS` windows away) into :attr:`overlays_ahead`, for an idle

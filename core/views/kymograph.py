@@ -170,6 +170,15 @@ class KymographComputer(WindowReader):
         self._ann.scene = scene
         return self._ann
 
+    def release_caches(self) -> int:
+        """Empty the label-map cache and drop the annotator (the view is out of sight and the app idle: both are
+        made again on demand, ~30 ms for the annotator). Call on the computer's own thread. Returns the bytes the
+        cache held."""
+        nb = self.maps.nbytes
+        self.maps.clear()
+        self._ann = self._ann_key = None          # its rasteriser's per-pixel rays (~3.5 MB)
+        return nb
+
     def stages(self, req: KymographRequest):
         """Generator: yields None after the event read and after every few label maps (checkpoints for a
         worker); returns the :class:`KymographData`."""

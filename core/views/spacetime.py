@@ -76,9 +76,20 @@ class SpaceTimeComputer(WindowReader):
             self._slice_scene_key = key
             self.slice_cache.clear()
             self.field_cache.clear()
-            self.surface_cache = SurfaceCache()
+            self.surface_cache.clear()
         self._slice_annotator.scene = scene
         return self._slice_annotator
+
+    def release_caches(self) -> int:
+        """Empty the slice, field and surface caches and drop the slices' annotator (the view is out of sight and
+        the app idle: they are made again on demand, ~30 ms for the annotator; the worker prefetches only after the
+        next request). Call on the computer's own thread. Returns the bytes the caches held."""
+        nb = self.slice_cache.nbytes + self.field_cache.nbytes + self.surface_cache.nbytes
+        self.slice_cache.clear()
+        self.field_cache.clear()
+        self.surface_cache.clear()
+        self._slice_annotator = self._slice_scene_key = None      # its rasteriser's per-pixel rays (~3.5 MB)
+        return nb
 
     def spacetime_stages(self, req: FrameRequest):
         """The space-time data as a generator of checkpoints (yields None after the event read and after

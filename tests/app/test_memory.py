@@ -104,3 +104,79 @@ def test_startup_imports_the_engine_before_qt_and_keeps_linecache_small():
     n_done, text = map(int, out.stdout.split())
     assert n_done >= 5
     assert text < 8 << 20, f"{text / 2**20:.1f} MB of module source held by linecache"
+
+
+def test_idle_release_runs_its_tasks_on_the_workers_then_gives_memory_back(qtbot, monkeypatch):
+    """Each task runs on its worker's thread (never racing a computation there); the heap is trimmed once all have
+    run; a background job's end restarts the quiet period."""
+    from PySide6 import QtCore
+
+    from evpose.app.workers import JOB_EVENTS, LatestWorker
+
+    calls, threads = [], []
+    monkeypatch.setattr(memory, "release_memory", lambda: calls.append(len(threads)) or True)
+    workers = [LatestWorker(lambda req: None, f"w{k}") for k in range(2)]
+    try:
+        tasks = [(w, lambda: threads.append(QtCore.QThread.currentThread().objectName()) or 1000) for w in workers]
+        tasks.append((None, lambda: threads.append("now") or 5))
+        r = memory.IdleReleaser(idle_ms=200, tasks=lambda: tasks)
+        r.poke()
+        qtbot.waitUntil(lambda: r.releases == 1, timeout=5000)
+        assert calls == [3] and sorted(threads) == ["now", "w0", "w1"]   # trimmed after all three
+        assert sorted(r.last_released) == [5, 1000, 1000]
+        JOB_EVENTS.ended.emit()                       # a job ended: its temporaries are freed, release again
+        qtbot.waitUntil(lambda: r.releases == 2, timeout=5000)
+        assert len(threads) == 6
+    finally:
+        for w in workers:
+            w.stop()
+
+
+def _caches(window):
+    c = window.feeds._computers
+    return {"overlays ahead": len(c["frame"].overlays_ahead), "slices": len(c["spacetime"].slice_cache),
+            "fields": len(c["spacetime"].field_cache), "label maps": len(c["kymograph"].maps),
+            "kymograph annotator": c["kymograph"]._ann is not None,
+            "space-time annotator": c["spacetime"]._slice_annotator is not None,
+            "residual annotator": window.residual_feed._compute._ann is not None}
+
+
+def test_idle_release_empties_the_prefetch_and_the_caches_of_views_out_of_sight(window, scene_copy, qtbot):
+    """Issue 25.4: once the user pauses, the work done ahead (the next window's overlays, all but 1 MB of the
+    decoded event blocks) and the caches of the views that cannot be seen (the kymograph and the space-time view
+    behind the residual view's tab) are dropped; the space-time view in sight keeps its slices."""
+    from evpose.app.feeds import IDLE_EVENT_BYTES
+
+    window.memory.timer.setInterval(60_000)           # released by hand below
+    s = window.controller.open_scene(scene_copy)
+    feeds = window.feeds
+    s.set_time(s.time_range[0] + 300_000)
+    window.spacetime.controls.kymograph_button.click()       # the kymograph in front of the space-time view
+    qtbot.waitUntil(lambda: window.kymograph.data is not None, timeout=30_000)
+    feeds.spacetime_dock.raise_()
+    for _ in range(3):                                # steps: the next window's overlays are computed ahead
+        s.step_windows(1)
+        qtbot.waitUntil(lambda: window.frame_up_to_date() and feeds.spacetime.up_to_date(), timeout=30_000)
+    qtbot.waitUntil(lambda: len(feeds._computers["frame"].overlays_ahead) > 0, timeout=10_000)
+    window.panel.residuals_button.click()             # the residual view in front: both others out of sight
+    qtbot.waitUntil(lambda: window.residual_feed.view.data is not None, timeout=60_000)
+    before = _caches(window)
+    assert all(before.values()), before
+    assert feeds.event_cache.nbytes > 0
+    n = window.memory.releases
+    window.memory.timer.timeout.emit()
+    qtbot.waitUntil(lambda: window.memory.releases == n + 1, timeout=10_000)
+    after = _caches(window)
+    assert after == {**{k: 0 for k in ("overlays ahead", "slices", "fields", "label maps")},
+                     "kymograph annotator": False, "space-time annotator": False, "residual annotator": True}, after
+    assert feeds.event_cache.nbytes <= IDLE_EVENT_BYTES
+    feeds.spacetime_dock.raise_()                     # the space-time view in sight: its slices are kept
+    s.step_windows(1)
+    qtbot.waitUntil(lambda: feeds.spacetime.up_to_date() and len(feeds._computers["spacetime"].slice_cache) > 0,
+                    timeout=30_000)
+    qtbot.wait(300)
+    window.memory.timer.timeout.emit()
+    qtbot.waitUntil(lambda: window.memory.releases == n + 2, timeout=10_000)
+    kept = _caches(window)
+    assert kept["slices"] > 0 and kept["space-time annotator"] and not kept["residual annotator"], kept
+    assert window.last_error is None

@@ -107,3 +107,19 @@ def test_another_store_drops_the_old_blocks(store, tmp_path):
         ev = cache.window(other, 1_000_000, 1_010_000)
         assert len(ev) == 1 and ev.y[0] == 2
         assert cache.nbytes == event_nbytes(ev) and len(cache) == 1
+
+
+def test_shrink_keeps_the_most_recently_used_blocks_and_the_counters(store):
+    """The app's idle release (issue 25.4): all but the newest blocks go, the accounting stays exact, the windows
+    read afterwards are the store's."""
+    cache = EventChunkCache(max_bytes=8 * 2**20, block_us=BLOCK_US)
+    t = store.t_first_us + 100_000
+    for k in range(8):
+        cache.window(store, t + 10_000 * k, t + 10_000 * (k + 1))
+    newest = cache.cached_blocks()[-1]
+    keep = event_nbytes(cache._blocks[newest])
+    misses, n = cache.stats.misses, cache.nbytes
+    assert cache.shrink(keep) == n - keep
+    assert cache.cached_blocks() == [newest] and cache.nbytes == keep and cache.stats.misses == misses
+    assert cache.shrink(0) == keep and len(cache) == 0 and cache.nbytes == 0
+    assert same(cache.window(store, t, t + 10_000), store.window(t, t + 10_000))

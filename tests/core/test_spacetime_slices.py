@@ -148,3 +148,29 @@ def test_caches_derived_from_slices_keep_no_slice_the_slice_cache_dropped(sessio
     fc.spacetime(session.request())              # inserts drop the entries of dead slices
     assert len(fc.field_cache) <= len(fc.slice_cache)
     assert all(r() is not None for r, _ in fc.field_cache._items.values())
+
+
+def test_the_band_fields_and_the_surfaces_stay_within_their_byte_bounds(session):
+    """Issue 25.4: the merged fields (H x W x 2 int8 each: 180 kB on a DAVIS346, 1.8 MB on a 1280 x 720 sensor) and
+    the joined rings are bounded in bytes, not in entries; what they count is what they hold."""
+    from evpose.core.views.spacetime_band import MergedFieldCache, derived_nbytes
+    from evpose.core.views.spacetime_surface import SurfaceCache
+
+    cam = session.scene.camera
+    field_bytes = cam.height * cam.width * 2
+    fc = SpaceTimeComputer()
+    fc.field_cache = MergedFieldCache(max_bytes=5 * field_bytes)
+    fc.surface_cache = SurfaceCache(max_bytes=20_000)
+    for _ in range(6):
+        data = fc.spacetime(session.request())
+        assert data.surfaces
+        fields, rings = fc.field_cache, fc.surface_cache
+        assert 0 < fields.nbytes <= 5 * field_bytes and len(fields) <= 5
+        assert fields.nbytes == sum(v[1].nbytes for v in fields._items.values())
+        assert 0 < rings.nbytes <= 20_000
+        assert rings.nbytes == sum(derived_nbytes(v[1]) for v in rings._items.values())
+        session.step_windows(3)
+    nb = fc.release_caches()
+    assert nb > 0 and fc.slice_cache.nbytes == fields.nbytes == rings.nbytes == 0 and len(fields) == len(rings) == 0
+    fresh = SpaceTimeComputer().spacetime(session.request())
+    assert_same(fc.spacetime(session.request()), fresh)          # made again on demand
