@@ -24,11 +24,11 @@ __all__ = ["ResidualView", "LEGEND"]
 LEGEND = ("<span style='color:#dc1e1e'>■</span> outside the drawn outline &nbsp; "
           "<span style='color:#1e46dc'>■</span> inside &nbsp; <span style='color:#28a03c'>■</span> inner edge &nbsp; "
           "<span style='color:#999'>■</span> no edge within {band:g} px")
-COLUMNS = ("object", "events", "mean (px)", "shift x (px)", "shift y (px)")
+COLUMNS = ("object", "events", "mean px", "shift x px", "shift y px")
 
 
 def _pm(v: float, sd: float) -> str:
-    return f"{v:+.2f}" + (f" ± {sd:.2f}" if math.isfinite(sd) else " (not pinned)")
+    return f"{v:+.2f}" + (f"±{sd:.2f}" if math.isfinite(sd) else " (not pinned)")
 
 
 class ResidualView(QtWidgets.QWidget):
@@ -39,7 +39,7 @@ class ResidualView(QtWidgets.QWidget):
         self.data: ResidualData | None = None
         self.plot = pg.GraphicsLayoutWidget()
         self.plot.setBackground("w")
-        self.plot.setMinimumHeight(160)
+        self.plot.setMinimumHeight(110)
         self.viewbox = self.plot.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
         self.image = pg.ImageItem(axisOrder="row-major")
         self.viewbox.addItem(self.image)
@@ -52,6 +52,7 @@ class ResidualView(QtWidgets.QWidget):
         self.table.setEditTriggers(QtWidgets.QAbstractItemView.NoEditTriggers)
         self.table.horizontalHeader().setSectionResizeMode(QtWidgets.QHeaderView.ResizeToContents)
         self.table.horizontalHeader().setStretchLastSection(True)
+        self.table.verticalHeader().setDefaultSectionSize(self.table.fontMetrics().height() + 6)
         self.table.setToolTip("mean: signed distance of the silhouette's events (+: outside the drawn outline); "
                               "shift: the outline's image shift that fits them (x right, y down), ± its standard "
                               "error (a jackknife over 8 stretches of the outline)")
@@ -59,13 +60,19 @@ class ResidualView(QtWidgets.QWidget):
         self.status.setWordWrap(True)
         #: the selected object swept over a span, from the top and the side (widgets/sweep_view.py)
         self.sweep = SweepView()
+        # the image and the sweep share what the table leaves, in a splitter (a laptop's dock is ~470 px tall)
+        self.splitter = QtWidgets.QSplitter(QtCore.Qt.Vertical)
+        self.splitter.setChildrenCollapsible(False)
+        self.splitter.addWidget(self.plot)
+        self.splitter.addWidget(self.sweep)
+        self.splitter.setStretchFactor(0, 1)
+        self.splitter.setStretchFactor(1, 1)
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(2, 2, 2, 2)
-        lay.addWidget(self.plot, 1)
         lay.addWidget(self.legend)
         lay.addWidget(self.table)
         lay.addWidget(self.status)
-        lay.addWidget(self.sweep, 1)
+        lay.addWidget(self.splitter, 1)
 
     def set_data(self, data: ResidualData, compute_ms: float | None = None) -> None:
         """Show ``data`` (a :class:`~evpose.core.views.residuals.ResidualData`)."""

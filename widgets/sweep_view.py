@@ -30,16 +30,17 @@ class SweepView(QtWidgets.QWidget):
         super().__init__(parent)
         self.data: SweepData | None = None
         self.title = QtWidgets.QLabel("")
+        self.title.setWordWrap(True)          # a long object name must not widen a narrow dock
         self.glw = pg.GraphicsLayoutWidget()
         self.glw.setBackground("w")
-        self.glw.setMinimumHeight(280)
+        self.glw.setMinimumHeight(120)
         self.plots, self.images, self.lines = [], [], []
         for row, label in enumerate(("x (px), top view", "y (px), side view")):
-            p = self.glw.addPlot(row=row, col=0)
+            p = self.glw.addPlot(row=0, col=row)      # side by side: a laptop's dock is wider than it is free
             p.setMenuEnabled(False)
             p.invertY(True)
             p.setLabel("left", label)
-            p.setLabel("bottom", "t (ms from the current time)")
+            p.setLabel("bottom", "t (ms from now)")
             img = pg.ImageItem(axisOrder="row-major")
             p.addItem(img)
             pair = [pg.PlotCurveItem(connect="finite") for _ in range(2)]
