@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_PEAK_HWHM_FRACTION", "MAX_SECOND_PEAK_RATIO", "MIN_PEAK_NCC", "ambiguity", "confidence", "parabolic_offset",
-           "peak_analysis"]
+__all__ = ["MAX_PEAK_HWHM_FRACTION", "MAX_SECOND_PEAK_RATIO", "MIN_PEAK_NCC", "ambiguity", "confidence", "local_maxima",
+           "parabolic_offset", "peak_analysis"]
 
 #: Thresholds of the reliability decision (see :func:`evpose.core.align.estimate.estimate_clock`).
 MIN_PEAK_NCC = 0.3            # peak normalised correlation below this: "flat correlation"
@@ -27,14 +27,29 @@ def parabolic_offset(y_m: float, y0: float, y_p: float) -> float:
     return float(np.clip(0.5 * (y_m - y_p) / den, -0.5, 0.5))
 
 
+def local_maxima(x: np.ndarray) -> np.ndarray:
+    """Indices of the local maxima of ``x`` (1-D): samples, or the middle (rounded down) of flat runs, higher than
+    both neighbours; never the first or the last sample. ``scipy.signal.find_peaks(x)[0]`` without importing
+    :mod:`scipy.signal` (~23 MB resident in the app; tracker issue 25.4)."""
+    x = np.asarray(x, dtype=np.float64)
+    n = len(x)
+    if n < 3:
+        return np.zeros(0, np.intp)
+    change = np.flatnonzero(x[1:] != x[:-1]) + 1            # starts of runs of equal values (NaN: its own run)
+    starts = np.concatenate(([0], change))
+    ends = np.concatenate((change - 1, [n - 1]))
+    inner = (starts > 0) & (ends < n - 1)
+    s, e = starts[inner], ends[inner]
+    top = (x[s - 1] < x[s]) & (x[e + 1] < x[s])
+    return ((s[top] + e[top]) // 2).astype(np.intp)
+
+
 def peak_analysis(ncc: np.ndarray, i_lo: int, i_hi: int):
     """Main peak (index within [i_lo, i_hi]), sub-bin shift, second-best peak and half width.
 
     Returns ``(i_peak, delta, peak, second, hwhm_bins, at_edge, base)`` (``base``: the curve's median)
     or None when all NaN.
     """
-    from scipy import signal      # here, not at the top: the kymograph (GUI) imports parabolic_offset only
-
     c = np.where(np.isfinite(ncc), ncc, -np.inf)
     if not np.isfinite(c).any():
         return None
@@ -60,7 +75,7 @@ def peak_analysis(ncc: np.ndarray, i_lo: int, i_hi: int):
     # valley (deeper than a quarter of its height above the median), so that ripples on the
     # flanks of the main lobe do not count
     second = float("-inf")
-    peaks, _ = signal.find_peaks(np.where(np.isfinite(c), c, -2.0))
+    peaks = local_maxima(np.where(np.isfinite(c), c, -2.0))
     for p in peaks:
         if p == i or not np.isfinite(c[p]):
             continue

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
+from scipy.special import ndtri
 
 from evpose.core.align.correlation import ncc_scan, refine_ncc_offset
 from evpose.core.align.correlation_peak import MIN_PEAK_NCC, peak_analysis
@@ -19,7 +19,7 @@ from evpose.core.align.likelihood import ml_offset
 from evpose.core.align.rate_series import RateSeries, check_cancel
 from evpose.core.align.sync_result import ClockEstimate, SegmentOffset
 
-__all__ = ["robust_line", "segment_offset", "skew_from_segments"]
+__all__ = ["robust_line", "segment_offset", "skew_from_segments", "theil_sen"]
 
 #: A Theil-Sen skew is taken on its own when its 90 % interval is at most this wide either way (ppm).
 MAX_LINE_HALF_CI_PPM = 100.0
@@ -54,6 +54,50 @@ def segment_offset(prob: RateSeries, sel: np.ndarray, t0_us: int, t1_us: int, ce
     return seg
 
 
+def theil_sen(y, x, alpha: float = 0.95) -> tuple[float, float, float, float]:
+    """``(slope, intercept, low_slope, high_slope)``: the Theil-Sen line through ``(x, y)`` (the median of the
+    pairwise slopes; intercept ``median(y) - slope * median(x)``) and the ``alpha`` confidence interval of the slope
+    (Sen 1968, eq. 2.6, with ties). The same operations as :func:`scipy.stats.theilslopes` (``method='separate'``),
+    so the same bits, without importing :mod:`scipy.stats` (~19 MB resident in the app, 0.7 s; tracker issue 25.4).
+    NaN anywhere: all NaN (scipy's ``nan_policy='propagate'``)."""
+    y = np.array(y, dtype=float, copy=True).ravel()
+    x = np.array(x, dtype=float, copy=True).ravel()
+    if len(x) != len(y):
+        raise ValueError("theil_sen: x and y differ in length")
+    nan = float("nan")
+    if len(x) < 2 or np.isnan(x).any() or np.isnan(y).any():
+        return nan, nan, nan, nan
+    deltax = x[:, np.newaxis] - x
+    deltay = y[:, np.newaxis] - y
+    slopes = deltay[deltax > 0] / deltax[deltax > 0]
+    slopes.sort()
+    medslope = np.median(slopes) if slopes.size else np.float64(nan)
+    medinter = np.median(y) - medslope * np.median(x)
+    if alpha > 0.5:
+        alpha = 1.0 - alpha
+    z = ndtri(alpha / 2.0)
+    nt, ny = len(slopes), len(y)
+    sigsq = 1 / 18. * (ny * (ny - 1) * (2 * ny + 5)
+                       - sum(k * (k - 1) * (2 * k + 5) for k in _repeat_counts(x))
+                       - sum(k * (k - 1) * (2 * k + 5) for k in _repeat_counts(y)))
+    try:
+        sigma = np.sqrt(sigsq)
+        ru = min(int(np.round((nt - z * sigma) / 2.)), len(slopes) - 1)
+        rl = max(int(np.round((nt + z * sigma) / 2.)) - 1, 0)
+        delta = slopes[[rl, ru]]
+    except (ValueError, IndexError):
+        delta = (np.float64(nan), np.float64(nan))
+    return medslope, medinter, delta[0], delta[1]
+
+
+def _repeat_counts(a: np.ndarray) -> np.ndarray:
+    """How often each value of ``a`` that occurs more than once occurs."""
+    a = np.sort(a)
+    change = np.concatenate(([True], a[1:] != a[:-1]))
+    freq = np.diff(np.concatenate(np.nonzero(change) + ([a.size],)))
+    return freq[freq > 1]
+
+
 def robust_line(used: list, t_ref_us: int, bin_us: int):
     """Theil-Sen line through the segment offsets (µs against s since ``t_ref_us``), refitted on
     the inliers (3 MAD, at least a quarter bin); outliers get ``used = False``. Returns
@@ -62,14 +106,14 @@ def robust_line(used: list, t_ref_us: int, bin_us: int):
         return None
     x = np.array([(s.t_center_us - t_ref_us) * 1e-6 for s in used])   # s
     y = np.array([s.offset_us for s in used])                           # µs
-    slope, icpt, lo_s, hi_s = stats.theilslopes(y, x, 0.9)
+    slope, icpt, lo_s, hi_s = theil_sen(y, x, 0.9)
     resid = y - (icpt + slope * x)
     mad = 1.4826 * np.median(np.abs(resid - np.median(resid)))
     inl = np.abs(resid) <= max(3 * mad, 0.25 * bin_us)
     for s, ok in zip(used, inl):
         s.used = bool(ok)
     if inl.sum() >= 3:
-        slope, icpt, lo_s, hi_s = stats.theilslopes(y[inl], x[inl], 0.9)
+        slope, icpt, lo_s, hi_s = theil_sen(y[inl], x[inl], 0.9)
     return float(slope), float(icpt), 0.5 * (hi_s - lo_s), int(inl.sum())
 
 

@@ -57,7 +57,6 @@ def run_sync(scene, opts: SyncOptions, *, progress=None, edge_progress=None, can
     import time
 
     from evpose.core.align.estimate import sync_scene
-    from evpose.core.align.minima_baseline import sync_minima_baseline
     from evpose.core.document.history import History
 
     t_start = time.perf_counter()
@@ -66,6 +65,8 @@ def run_sync(scene, opts: SyncOptions, *, progress=None, edge_progress=None, can
     res = run.result = sync_scene(scene, range_ms=opts.range_ms, bin_us=opts.bin_us)
     stages = {"rate": res.to_json(curve=opts.curve)}
     if opts.baseline:
+        from evpose.core.align.minima_baseline import sync_minima_baseline     # scipy.signal: only when asked
+
         data["baseline"] = sync_minima_baseline(scene, range_ms=opts.range_ms).to_json()
     if opts.edges and res.reliable:
         run.edges = edge_stage(scene, res, opts.windows, progress=edge_progress, cancel=cancel)
