@@ -8,7 +8,9 @@ the records. The driver journals a window only after its record arrived, so a wo
 loses nothing: Dask runs the chunk again elsewhere and the rerun writes the same bytes.
 
 Each worker process keeps the contexts of the last few export configurations (scene, annotator,
-rasteriser caches), so a scene's chunks after the first pay no set-up.
+rasteriser caches), so a scene's chunks after the first pay no set-up; when a scene's last chunk is in, the
+driver asks every worker to drop that scene's context and give the freed heap back (:func:`evict_context`):
+an idle worker returns near its start size instead of holding two scenes' meshes and caches.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from evpose.core.data.events import Cancelled
 from evpose.core.export.pool import WindowExecutor, run_worker_chunk
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
-__all__ = ["DaskWindows", "run_chunk"]
+__all__ = ["DaskWindows", "evict_context", "run_chunk"]
 
 #: Worker contexts kept per worker process (each holds an open event file and mesh caches).
 CONTEXTS_KEPT = 2
@@ -41,6 +43,24 @@ def _context(spec: WorkerSpec, key: str) -> WorkerContext:
                 old.scene.close()
         _contexts.move_to_end(key)
         return wctx
+
+
+def evict_context(key: str) -> int:
+    """Run on every worker after a scene's last chunk: close and drop that export's context, collect, and give
+    the free heap pages back to the kernel. Returns the contexts still kept."""
+    import gc
+
+    from evpose.core.data.heap import trim_heap
+
+    with _lock:
+        wctx = _contexts.pop(key, None)
+        if wctx is not None:
+            wctx.scene.close()
+        kept = len(_contexts)
+    del wctx
+    gc.collect()
+    trim_heap()
+    return kept
 
 
 def run_chunk(spec: WorkerSpec, key: str, tasks: list) -> tuple[list, dict]:
@@ -78,25 +98,55 @@ class DaskWindows(WindowExecutor):
     def workers(self) -> int:
         return max(1, sum(self.client.nthreads().values()))
 
-    def run(self, spec: WorkerSpec, chunks: list[list], key: str):
+    def run(self, spec: WorkerSpec, planner, key: str):
+        """Submit ``planner``'s chunks, about two per worker in flight, each sized from the CPU the finished
+        ones took (:class:`~evpose.core.export.chunks.ChunkPlanner`); yield their results as they complete."""
         from distributed import as_completed
 
-        with self._lock:
-            if self._stopped:
-                raise Cancelled(f"{spec.out_dir}: export cancelled")
-            futures = [self.client.submit(run_chunk, spec, key, chunk, pure=False, retries=self.retries)
-                       for chunk in chunks]
-            self._pending.update(futures)
-        if self.events is not None:
-            scene = Path(spec.out_dir).name           # the dataset export writes each scene to OUT/<scene name>
-            for f in futures:
-                self.events.track(f.key, scene)
+        scene = Path(spec.out_dir).name           # the dataset export writes each scene to OUT/<scene name>
+        ac = as_completed()
+        active: set = set()
+
+        def submit_more() -> None:
+            while len(active) < 2 * self.workers:
+                chunk = planner.next()
+                if chunk is None:
+                    return
+                with self._lock:
+                    if self._stopped:
+                        raise Cancelled(f"{spec.out_dir}: export cancelled")
+                    f = self.client.submit(run_chunk, spec, key, chunk, pure=False, retries=self.retries)
+                    self._pending.add(f)
+                active.add(f)
+                ac.add(f)
+                if self.events is not None:
+                    self.events.track(f.key, scene)
+
+        finished = False
         try:
-            for future in as_completed(futures):
+            submit_more()
+            for future in ac:
+                active.discard(future)
                 if future.cancelled() or self._stopped:
                     raise Cancelled(f"{spec.out_dir}: export cancelled")
-                yield future.result()
+                results, timings = future.result()
+                planner.record(len(results), timings.get("worker_cpu", sum(timings.values())))
+                with self._lock:
+                    self._pending.discard(future)
+                submit_more()
+                yield results, timings
+            finished = True
         finally:
-            self.client.cancel([f for f in futures if not f.done()])
+            self.client.cancel([f for f in active if not f.done()])
             with self._lock:
-                self._pending.difference_update(futures)
+                self._pending.difference_update(active)
+            if finished:
+                self._evict(key)
+
+    def _evict(self, key: str) -> None:
+        """Every worker drops the finished scene's context (best effort: a worker gone or busy does not fail
+        the export; a context left behind is evicted by the bounded cache later)."""
+        try:
+            self.client.run(evict_context, key, wait=True)
+        except Exception:
+            pass

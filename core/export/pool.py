@@ -18,6 +18,7 @@ import signal
 import time
 
 from evpose.core.data.events import Cancelled
+from evpose.core.export.chunks import ChunkPlanner
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
 __all__ = ["FLUSH_WINDOWS", "FLUSH_SECONDS", "WindowExecutor", "chunk_tasks", "run_worker_chunk", "run_windows"]
@@ -32,15 +33,17 @@ FLUSH_SECONDS = 5.0
 class WindowExecutor:
     """Runs chunks of window tasks somewhere else (another process, another machine).
 
-    :meth:`run` yields ``(results, timings)`` per chunk in completion order, each result the
-    ``(record, payload)`` of :meth:`~evpose.core.export.worker.WorkerContext.run`; closing the
-    generator early (an error, a cancel) cancels the chunks not yet done. ``key`` names the export
-    configuration (a worker may keep one context per key). ``workers`` says how many chunks run at once.
+    :meth:`run` takes its chunks from ``planner`` (:class:`~evpose.core.export.chunks.ChunkPlanner`: ``next()``
+    as it can place them, ``record(n_windows, cpu_s)`` as they come back) and yields ``(results, timings)`` per
+    chunk in completion order, each result the ``(record, payload)`` of
+    :meth:`~evpose.core.export.worker.WorkerContext.run`; closing the generator early (an error, a cancel)
+    cancels the chunks not yet done. ``key`` names the export configuration (a worker may keep one context per
+    key). ``workers`` says how many chunks run at once.
     """
 
     workers = 1
 
-    def run(self, spec: WorkerSpec, chunks: list[list], key: str):  # pragma: no cover - interface
+    def run(self, spec: WorkerSpec, planner, key: str):  # pragma: no cover - interface
         raise NotImplementedError
 
 
@@ -58,8 +61,10 @@ def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, repo
     is called after each window (serial) or chunk (pool, executor); ``cancel()`` True raises
     :class:`~evpose.core.data.events.Cancelled`. An ``executor`` takes the place of ``jobs``."""
     if executor is not None and tasks:
+        planner = ChunkPlanner(tasks)        # chunks sized in CPU seconds as their costs come back
         _run_chunks(ctx, tasks, records, summary, report, cancel,
-                    lambda chunks: executor.run(spec, chunks, f"{ctx.out_dir}|{ctx.sha}"), executor.workers)
+                    lambda _chunks: executor.run(spec, planner, f"{ctx.out_dir}|{ctx.sha}"), executor.workers)
+        summary.chunks = list(planner.sizes)
     elif jobs == 1 or len(tasks) <= 1:
         _run_serial(ctx, spec, tasks, records, summary, report, cancel)
     else:
@@ -163,6 +168,12 @@ def _worker_run(tasks: list) -> tuple[list, dict]:
 
 
 def run_worker_chunk(wctx: WorkerContext, tasks: list) -> tuple[list, dict]:
-    """Run a chunk of window tasks in a worker; returns their ``(record, payload)`` and the stage timings."""
+    """Run a chunk of window tasks in a worker; returns their ``(record, payload)`` and the stage timings, with
+    the CPU seconds the chunk took on this thread as ``worker_cpu`` (the window work is single-threaded: numba
+    kernels serial, OpenCV at one thread), from which :class:`~evpose.core.export.chunks.ChunkPlanner` sizes
+    the next chunks."""
+    c0 = time.thread_time()
     out = [wctx.run(t) for t in tasks]
-    return out, wctx.take_timings()
+    timings = wctx.take_timings()
+    timings["worker_cpu"] = time.thread_time() - c0
+    return out, timings

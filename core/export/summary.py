@@ -75,6 +75,9 @@ class ExportSummary:
     #: minus that chunk's processing time (spawn, imports, opening the scene in each worker).
     pool_startup_s: float = 0.0
     events_only: bool = False
+    #: on a cluster: the windows of each chunk, in the order handed out (sized from the measured CPU per window,
+    #: :class:`~evpose.core.export.chunks.ChunkPlanner`); empty otherwise
+    chunks: list = field(default_factory=list)
 
     def to_json(self, *, with_files: bool = True) -> dict:
         d = asdict(self)

@@ -308,13 +308,15 @@ def test_an_executor_whose_worker_died_mid_write_leaves_no_temp_file(small_scene
     from evpose.core.export.worker import WorkerContext
 
     class DyingFirstWorker(WindowExecutor):
-        def run(self, spec, chunks, key):
+        def run(self, spec, planner, key):
             wctx = WorkerContext(spec)
             out = Path(spec.out_dir)
             (out / ".0000_event_image.png.999999-dead.tmp").write_bytes(b"half a png")   # the killed worker's
             try:
-                for chunk in chunks:
-                    yield run_worker_chunk(wctx, chunk)
+                while (chunk := planner.next()) is not None:
+                    results, timings = run_worker_chunk(wctx, chunk)
+                    planner.record(len(results), timings["worker_cpu"])
+                    yield results, timings
             finally:
                 wctx.scene.close()
 

@@ -81,6 +81,12 @@ def test_dataset_sync_and_score_equal_the_single_scene_commands(dask_client, tin
     assert len(set(offsets)) == 3
 
 
+def _contexts_kept() -> int:
+    from evpose.core.dataset import dask_windows
+
+    return len(dask_windows._contexts)
+
+
 def test_dataset_export_equals_the_single_scene_exports(dask_client, tiny_dataset, reference_epose, tmp_path):
     from evpose.core.dataset.export import export_dataset
 
@@ -90,6 +96,11 @@ def test_dataset_export_equals_the_single_scene_exports(dask_client, tiny_datase
         got = tree(tmp_path / "out" / name)
         assert got.keys() == ref.keys(), name
         assert describe_file_differences(got, ref) == [], name
+    # every chunk was cut from the measured cost (probes first), and no worker keeps a finished scene's context
+    # (scene, meshes, rasteriser caches: issue 27.5)
+    for doc in res.scenes.values():
+        assert sum(doc["chunks"]) == doc["written"] and doc["chunks"][0] <= 4, doc["chunks"]
+    assert set(dask_client.run(_contexts_kept).values()) == {0}
     # a rerun skips what is complete
     again = export_dataset(dask_client, Dataset.open(tiny_dataset), "epose", tmp_path / "out")
     assert all(s["written"] == 0 and s["skipped_complete"] > 0 for s in again.scenes.values())

@@ -1,0 +1,80 @@
+"""Chunks of windows sized in work, not in counts (issue 27.2): each task of a cluster export should take a few
+seconds of a worker's CPU whatever the number of workers and whatever a window costs on that scene.
+
+A scene's first chunks are small probes (:data:`PROBE_WINDOWS` windows); every chunk that comes back tells its
+CPU seconds, and the following chunks hold ``TARGET_TASK_CPU_S / (CPU s per window so far)`` windows (clamped to
+``1 .. MAX_CHUNK_WINDOWS`` and to what is left). A scene whose windows cost 0.2 s gets chunks of ~20 windows, one
+whose windows cost 5 ms gets ~512: per-task overheads (scheduling, the round trip, the result's
+deserialisation, the driver's bookkeeping) stay a small share of the work, and the scheduler sees tasks it
+can place (~1 per 4 s per worker: 16 tasks/s for 64 workers) instead of ~150 small ones per second.
+
+Windows are cut contiguously in order, so a chunk is a run of consecutive windows (read sequentially from the
+event file); the records are per window, so the output does not depend on the cut.
+"""
+from __future__ import annotations
+
+import threading
+
+__all__ = ["ChunkPlanner", "MAX_CHUNK_WINDOWS", "PROBE_WINDOWS", "TARGET_TASK_CPU_S"]
+
+#: CPU seconds a task aims at (issue 27: 2-10 s).
+TARGET_TASK_CPU_S = 4.0
+#: Windows of a probe chunk (the first chunks of a scene, before any cost is known).
+PROBE_WINDOWS = 4
+#: At most this many windows a chunk (the records and, for HDF5, the frames come back in one message).
+MAX_CHUNK_WINDOWS = 512
+
+
+class ChunkPlanner:
+    """Cut ``tasks`` into chunks as they are asked for (:meth:`next`), sized from the CPU the finished ones took
+    (:meth:`record`). Thread-safe; ``sizes`` lists the sizes handed out, in order."""
+
+    def __init__(self, tasks: list, *, target_s: float = TARGET_TASK_CPU_S, probe: int = PROBE_WINDOWS,
+                 max_windows: int = MAX_CHUNK_WINDOWS):
+        self._tasks = tasks
+        self._next = 0
+        self._lock = threading.Lock()
+        self.target_s = float(target_s)
+        self.probe = max(1, int(probe))
+        self.max_windows = max(1, int(max_windows))
+        self.windows_measured = 0
+        self.cpu_measured_s = 0.0
+        self.sizes: list[int] = []
+
+    @property
+    def remaining(self) -> int:
+        return len(self._tasks) - self._next
+
+    @property
+    def cpu_per_window_s(self) -> float | None:
+        """The measured CPU seconds per window (None before the first chunk came back)."""
+        if self.windows_measured == 0:
+            return None
+        return self.cpu_measured_s / self.windows_measured
+
+    def size(self) -> int:
+        """The size the next chunk gets (before clamping to what is left)."""
+        cost = self.cpu_per_window_s
+        if cost is None:
+            return self.probe
+        if cost <= 0.0:
+            return self.max_windows
+        return int(min(self.max_windows, max(1, round(self.target_s / cost))))
+
+    def next(self) -> list | None:
+        """The next chunk of consecutive tasks, or None when every task was handed out."""
+        with self._lock:
+            if self._next >= len(self._tasks):
+                return None
+            n = min(self.size(), len(self._tasks) - self._next)
+            chunk = self._tasks[self._next:self._next + n]
+            self._next += n
+            self.sizes.append(n)
+            return chunk
+
+    def record(self, n_windows: int, cpu_s: float) -> None:
+        """A chunk of ``n_windows`` came back having taken ``cpu_s`` CPU seconds on its worker."""
+        with self._lock:
+            if n_windows > 0 and cpu_s >= 0.0:
+                self.windows_measured += int(n_windows)
+                self.cpu_measured_s += float(cpu_s)

@@ -1,0 +1,56 @@
+"""Chunks sized in work (issue 27.2): probes first, then chunks of about TARGET_TASK_CPU_S of measured CPU each,
+whatever the number of windows; a slow scene gets small chunks, a fast one big ones; every task handed out once,
+in order."""
+from __future__ import annotations
+
+import pytest
+
+from evpose.core.export.chunks import MAX_CHUNK_WINDOWS, PROBE_WINDOWS, TARGET_TASK_CPU_S, ChunkPlanner
+
+
+def drain(cost_s: float, n: int = 5000, in_flight: int = 4) -> tuple[list[int], list]:
+    """Hand out every chunk of ``n`` windows costing ``cost_s`` CPU s each, ``in_flight`` chunks out at a time
+    (as the Dask executor does: the first ones before any cost is known)."""
+    tasks = list(range(n))
+    p = ChunkPlanner(tasks)
+    out, flying = [], []
+    while True:
+        while len(flying) < in_flight:
+            c = p.next()
+            if c is None:
+                break
+            flying.append(c)
+        if not flying:
+            break
+        c = flying.pop(0)
+        out.extend(c)
+        p.record(len(c), cost_s * len(c))
+    return p.sizes, out
+
+
+@pytest.mark.parametrize("cost_s", [0.2, 0.05, 0.004])
+def test_chunks_hold_the_target_cpu_once_the_cost_is_known(cost_s):
+    sizes, handed = drain(cost_s)
+    assert handed == list(range(5000))                       # each window once, in order
+    assert sizes[:4] == [PROBE_WINDOWS] * 4                  # probes while nothing is measured
+    steady = sizes[4:-1]                                     # (the last one takes what is left)
+    expect = min(MAX_CHUNK_WINDOWS, round(TARGET_TASK_CPU_S / cost_s))
+    assert steady and all(s == expect for s in steady), (cost_s, steady[:5])
+    assert all(2.0 <= s * cost_s <= 10.0 for s in steady) or expect == MAX_CHUNK_WINDOWS
+
+
+def test_a_slow_scene_gets_smaller_chunks_than_a_fast_one():
+    slow, _ = drain(0.25)
+    fast, _ = drain(0.01)
+    assert max(slow[4:]) == 16 and min(fast[4:-1]) == 400
+    assert len(slow) > 10 * len(fast) / 2
+
+
+def test_the_estimate_follows_the_measured_cost_not_the_count():
+    p = ChunkPlanner(list(range(1000)), target_s=2.0, probe=2)
+    assert p.next() == [0, 1] and p.cpu_per_window_s is None
+    p.record(2, 0.2)                                          # 0.1 s a window -> 20 windows
+    assert len(p.next()) == 20
+    p.record(20, 0.2)                                         # now 0.4 s over 22 windows: ~0.018 -> 110
+    assert len(p.next()) == round(2.0 / (0.4 / 22))
+    assert p.remaining == 1000 - 2 - 20 - 110
