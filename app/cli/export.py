@@ -49,6 +49,7 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--split", metavar="NAME", default=None,
                    help="bop: the split folder the scene goes into: test (default), train or val (optionally "
                         "with a _TYPE suffix)")
+    p.add_argument("--skip", metavar="A,B", default=None, help=SKIP_HELP)
     p.add_argument("--force", action="store_true",
                    help="replace an earlier evpose export of a different configuration in --out")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
@@ -100,13 +101,30 @@ def window_us_from_args(args) -> int:
     return window_us
 
 
+#: ``--skip``'s help (``export`` and ``dataset export``).
+SKIP_HELP = ("epose: per-window products not to write, comma-separated: event_image, masks, segmented, "
+             "three_channel, bbox (the .mat is always written); 5 objects: 16 files a window with all, 10 without "
+             "segmented")
+
+
 def format_options_from_args(args) -> dict | None:
-    """``--split`` as the BOP writer's option (refused for the other formats)."""
-    if getattr(args, "split", None) is None:
-        return None
-    if args.format != "bop":
-        raise CliError(f"--split: only for --format bop, not {args.format}")
-    return {"split": args.split}
+    """``--split`` as the BOP writer's option, ``--skip`` as the E-POSE writer's (each refused for the other
+    formats)."""
+    opts = {}
+    if getattr(args, "split", None) is not None:
+        if args.format != "bop":
+            raise CliError(f"--split: only for --format bop, not {args.format}")
+        opts["split"] = args.split
+    if getattr(args, "skip", None) is not None:
+        if args.format != "epose":
+            raise CliError(f"--skip: only for --format epose, not {args.format}")
+        from evpose.core.export.epose import check_skip
+
+        try:
+            opts["skip"] = list(check_skip(args.skip))
+        except ValueError as exc:
+            raise CliError(f"--skip: {str(exc).removeprefix('skip: ')}") from None
+    return opts or None
 
 
 def objects_from_args(args) -> list[str] | None:

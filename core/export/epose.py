@@ -22,7 +22,7 @@ events), 346x260 for a DAVIS346:
     As the original: one exported object: one line of 8 numbers ``u1 v1 .. u4 v4`` (``%.4f``), the
     distorted pixel coordinates of box corners p1..p4; several: one line per object,
     ``name`` + two spaces + the 8 numbers. ``nan`` for a corner behind the camera.
-``NNNN_data.mat`` (MATLAB 5, written last: its presence marks the window complete)
+``NNNN_data.mat`` (MATLAB 5, written last: its presence marks the window complete; never skipped)
     Original fields and shapes, for ``k`` exported objects:
     ``pose`` 4x4k (T_cam_obj side by side), ``keypointprojections`` 8x5k (per object ``[u v X Y Z]`` of
     the 8 box corners in the original corner order p1..p8: (+x+y-z) (+x-y-z) (-x+y-z) (-x-y-z)
@@ -97,16 +97,37 @@ def window_stem(index: int, n_digits: int) -> str:
     return f"{index:0{n_digits}d}"
 
 
+#: Per-window products a user may leave out (``skip`` option, ``--skip``), by name: the files each removes.
+#: The ``.mat`` (labels, events, completion mark) is always written. Files per window with ``k`` objects: all
+#: products ``4 + 2 (k + 1)`` for ``k > 1`` (5 objects: 16), ``6`` for one; see :meth:`EposeWriter.window_files`.
+SKIPPABLE = ("event_image", "masks", "segmented", "three_channel", "bbox")
+
+
+def check_skip(skip) -> tuple[str, ...]:
+    """``skip`` (names from :data:`SKIPPABLE`, any order, or a comma-separated string) as a sorted tuple."""
+    if isinstance(skip, str):
+        skip = [s.strip() for s in skip.split(",") if s.strip()]
+    names = tuple(sorted(set(skip or ())))
+    bad = [n for n in names if n not in SKIPPABLE]
+    if bad:
+        raise ValueError(f"skip: unknown product {', '.join(map(repr, bad))} (E-POSE products: "
+                         f"{', '.join(SKIPPABLE)}; the .mat is always written)")
+    return names
+
+
 class EposeWriter(FormatWriter):
-    """E-POSE layout writer (see the module docstring for every encoding)."""
+    """E-POSE layout writer (see the module docstring for every encoding). ``skip``: products of
+    :data:`SKIPPABLE` not written (fewer files per window; part of the export's configuration)."""
 
     fmt = "epose"
 
-    def __init__(self, png_compression: int = 1):
+    def __init__(self, png_compression: int = 1, skip=()):
         self.png_compression = int(png_compression)
+        self.skip = check_skip(skip)
 
     def options(self) -> dict:
-        return {"png_compression": self.png_compression}
+        # "skip" only when set: an export without it keeps the configuration hash of earlier versions
+        return {"png_compression": self.png_compression, **({"skip": list(self.skip)} if self.skip else {})}
 
     def request(self, margin_m: float) -> Request:
         # one rasterisation gives the label map; every mask and the segmentation derive from it
@@ -114,17 +135,21 @@ class EposeWriter(FormatWriter):
                        segment_events=False, margin_m=margin_m)
 
     # ------------------------------------------------------------------ names
-    @staticmethod
-    def window_files(index: int, n_digits: int, k: int) -> list[str]:
-        s = window_stem(index, n_digits)
-        files = [f"{s}_event_image.png"]
+    def window_files(self, index: int, n_digits: int, k: int) -> list[str]:
+        """The files of window ``index`` with ``k`` exported objects, in write order (the ``.mat`` last)."""
+        s, skip = window_stem(index, n_digits), self.skip
+        files = [] if "event_image" in skip else [f"{s}_event_image.png"]
         if k == 1:
-            files += [f"{s}_mask_image.png", f"{s}_segmented_image.png"]
+            files += [] if "masks" in skip else [f"{s}_mask_image.png"]
+            files += [] if "segmented" in skip else [f"{s}_segmented_image.png"]
         else:
-            files += [f"{s}_mask_image_all.png"] + [f"{s}_mask_image_obj{j}.png" for j in range(1, k + 1)]
-            files += [f"{s}_segmented_image.png"] + [f"{s}_segmented_image_obj{j}.png" for j in range(1, k + 1)]
-        files += [f"{s}_three_channel_image.png", f"{s}_bbox.txt", f"{s}_data.mat"]
-        return files
+            if "masks" not in skip:
+                files += [f"{s}_mask_image_all.png"] + [f"{s}_mask_image_obj{j}.png" for j in range(1, k + 1)]
+            if "segmented" not in skip:
+                files += [f"{s}_segmented_image.png"] + [f"{s}_segmented_image_obj{j}.png" for j in range(1, k + 1)]
+        files += [] if "three_channel" in skip else [f"{s}_three_channel_image.png"]
+        files += [] if "bbox" in skip else [f"{s}_bbox.txt"]
+        return files + [f"{s}_data.mat"]
 
     def last_file(self, ctx, index):
         return ctx.out_dir / f"{window_stem(index, ctx.n_digits)}_data.mat"
@@ -141,9 +166,12 @@ class EposeWriter(FormatWriter):
     def finish(self, ctx, records) -> list[str]:
         k = len(ctx.names)
         written = sorted(i for i, r in records.items() if r.get("status") == "written")
-        paths = "".join(f"{window_stem(i, ctx.n_digits)}_three_channel_image.png\n" for i in written)
-        write_atomic(ctx.out_dir / "three_channel_image_paths.txt", paths.encode(), ctx.fsync, ctx.owned)
-        files = [f"{n}_box.txt" for n in ctx.names] + ["three_channel_image_paths.txt", "README.txt"]
+        files = [f"{n}_box.txt" for n in ctx.names]
+        if "three_channel" not in self.skip:
+            paths = "".join(f"{window_stem(i, ctx.n_digits)}_three_channel_image.png\n" for i in written)
+            write_atomic(ctx.out_dir / "three_channel_image_paths.txt", paths.encode(), ctx.fsync, ctx.owned)
+            files.append("three_channel_image_paths.txt")
+        files.append("README.txt")
         per = [f for i in written for f in self.window_files(i, ctx.n_digits, k)]
         ctx.extra["n_window_files"] = len(per)
         patterns = [f.replace("0" * ctx.n_digits, f"{{index:0{ctx.n_digits}d}}", 1)
@@ -175,7 +203,8 @@ class EposeWriter(FormatWriter):
         spike = _event_pixels(wctx, w.index, ev)
         blobs = self._images(wctx, stem, ev, spike, labels.label_map, w.t0_us)
         keypoints = _keypoints(wctx.camera, objs)
-        blobs.append((f"{stem}_bbox.txt", _bbox_text(objs, wctx.names).encode()))
+        if "bbox" not in self.skip:
+            blobs.append((f"{stem}_bbox.txt", _bbox_text(objs, wctx.names).encode()))
         t1 = time.perf_counter()
         mat = savemat_bytes(_mat_fields(wctx, task, ev, objs, keypoints))
         t2 = time.perf_counter()
@@ -199,21 +228,27 @@ class EposeWriter(FormatWriter):
         on_obj = lab > 0
         seg = spike * on_obj                                           # uint8: 255 * 1 or 0
         comp = self.png_compression
-        blobs = [(f"{stem}_event_image.png", encode_png(spike.reshape(H, W), compression=comp))]
-        if k == 1:
-            blobs.append((f"{stem}_mask_image.png", encode_png(on_obj.view(np.uint8).reshape(H, W), bilevel=True)))
+        skip = self.skip
+        blobs = [] if "event_image" in skip else [(f"{stem}_event_image.png",
+                                                   encode_png(spike.reshape(H, W), compression=comp))]
+        masks = [lab == j for j in range(1, k + 1)] if k > 1 else [on_obj]
+        if "masks" not in skip:
+            if k == 1:
+                blobs.append((f"{stem}_mask_image.png", encode_png(on_obj.view(np.uint8).reshape(H, W), bilevel=True)))
+            else:
+                blobs.append((f"{stem}_mask_image_all.png", encode_png(lab.reshape(H, W), compression=comp)))
+                for j, m in enumerate(masks, 1):
+                    blobs.append((f"{stem}_mask_image_obj{j}.png",
+                                  encode_png(m.view(np.uint8).reshape(H, W), bilevel=True)))
+        if "segmented" not in skip:
             blobs.append((f"{stem}_segmented_image.png", encode_png(seg.reshape(H, W), compression=comp)))
-        else:
-            blobs.append((f"{stem}_mask_image_all.png", encode_png(lab.reshape(H, W), compression=comp)))
-            masks = [lab == j for j in range(1, k + 1)]
-            for j, m in enumerate(masks, 1):
-                blobs.append((f"{stem}_mask_image_obj{j}.png", encode_png(m.view(np.uint8).reshape(H, W), bilevel=True)))
-            blobs.append((f"{stem}_segmented_image.png", encode_png(seg.reshape(H, W), compression=comp)))
-            for j, m in enumerate(masks, 1):
-                blobs.append((f"{stem}_segmented_image_obj{j}.png",
-                              encode_png((spike * m).reshape(H, W), compression=comp)))
-        rgb = three_channel_image(ev, W, H, t0_us, spike)
-        blobs.append((f"{stem}_three_channel_image.png", encode_png(rgb, compression=comp)))
+            if k > 1:
+                for j, m in enumerate(masks, 1):
+                    blobs.append((f"{stem}_segmented_image_obj{j}.png",
+                                  encode_png((spike * m).reshape(H, W), compression=comp)))
+        if "three_channel" not in skip:
+            rgb = three_channel_image(ev, W, H, t0_us, spike)
+            blobs.append((f"{stem}_three_channel_image.png", encode_png(rgb, compression=comp)))
         return blobs
 
     # ------------------------------------------------------------------ README

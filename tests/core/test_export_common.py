@@ -261,6 +261,14 @@ def test_cli_errors(small_scene, tmp_path, capsys):
     assert e.value.code == 2
     with pytest.raises(SystemExit):
         cli([str(small_scene), "--format", "png", "--out", str(tmp_path / "o")])
+    capsys.readouterr()
+    rc = cli([str(small_scene), "--format", "bop", "--out", str(tmp_path / "o"), "--skip", "segmented", "-q"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--skip: only for --format epose" in err and len(err.strip().splitlines()) == 1
+    rc = cli([str(small_scene), "--format", "epose", "--out", str(tmp_path / "o"), "--skip", "segmented,mask", "-q"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--skip: unknown product 'mask'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
     (small_scene / "corrections.json").write_text("{ not json")
     rc = cli([str(small_scene), "--format", "h5", "--out", str(tmp_path / "o2"), "-q"])
     err = capsys.readouterr().err

@@ -149,6 +149,36 @@ def test_single_object_names_and_bilevel_mask(tiny_scene_dir, tmp_path):
     assert len((out / f"{stem}_bbox.txt").read_text().split()) == 8
 
 
+def test_skipped_products_leave_exactly_their_files_out(tiny_scene_dir, tmp_path):
+    """``skip`` (issue 27.4: fewer files where a user does not need them): the skipped products' files are not
+    written, every other file is byte for byte the full export's, the manifest lists what is there, and the
+    configuration differs from the full export's (a rerun with another choice is another export)."""
+
+    from evpose.core.export.epose import EposeWriter
+
+    full_dir, skip_dir = tmp_path / "full", tmp_path / "skip"
+    _, full, s_full = _limited_export(tiny_scene_dir, full_dir)
+    _, part, s_part = _limited_export(tiny_scene_dir, skip_dir, format_options={"skip": ["segmented", "bbox"]})
+    assert s_full.written == s_part.written == 3
+    names = lambda d: {p.name for p in d.iterdir() if p.is_file()}                      # noqa: E731
+    gone = names(full) - names(part)
+    assert gone and all("_segmented_image" in n or n.endswith("_bbox.txt") for n in gone), sorted(gone)
+    assert names(part) <= names(full)
+    k = len(json.loads((full / "export_manifest.json").read_text())["objects"])
+    per_full = len(EposeWriter().window_files(0, 4, k))
+    per_part = len(EposeWriter(skip=("bbox", "segmented")).window_files(0, 4, k))
+    assert len(gone) == 3 * (per_full - per_part) and per_part == per_full - (k + 2)
+    for n in names(part) - {"export_manifest.json", "README.txt"}:
+        assert (full / n).read_bytes() == (part / n).read_bytes(), n
+    doc_full = json.loads((full / "export_manifest.json").read_text())
+    doc_part = json.loads((part / "export_manifest.json").read_text())
+    assert doc_part["format_options"]["skip"] == ["bbox", "segmented"] and "skip" not in doc_full["format_options"]
+    assert doc_part["config_sha256"] != doc_full["config_sha256"]
+    assert not any("segmented" in f for f in doc_part["window_files"]), doc_part["window_files"]
+    with pytest.raises(Exception, match="unknown product 'mask'"):
+        EposeWriter(skip=["mask"])
+
+
 # ----------------------------------------------------------------------------------------- defects
 def test_defect_corners_divided_by_first_corner_depth(exported):
     """Original: every corner's (u, v) used the FIRST corner's depth. Each corner must be projected
