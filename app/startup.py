@@ -3,9 +3,10 @@ why and the measurements: :mod:`evpose.app.memory`). Imports no Qt."""
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import importlib
 import sys
+
+from evpose.core.data.heap import libc  # noqa: F401  (glibc, shared with the Dask workers' heap trim)
 
 #: Allocations from this size on are mapped and unmapped on their own (glibc's ``M_MMAP_THRESHOLD``).
 MMAP_THRESHOLD_BYTES = 256 << 10
@@ -13,21 +14,6 @@ MMAP_THRESHOLD_BYTES = 256 << 10
 ARENA_MAX = 2
 _M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8          # mallopt parameters (malloc.h)
 
-_LIBC = None
-
-
-def libc():
-    """glibc, or None (another C library, or none found)."""
-    global _LIBC
-    if _LIBC is None:
-        try:
-            lib = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-            lib.malloc_trim.argtypes = [ctypes.c_size_t]
-            lib.malloc_trim.restype = ctypes.c_int
-            _LIBC = lib
-        except (OSError, AttributeError):
-            _LIBC = False
-    return _LIBC or None
 
 
 def configure_malloc() -> bool:
