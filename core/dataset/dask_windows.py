@@ -19,6 +19,7 @@ from collections import OrderedDict
 from pathlib import Path
 
 from evpose.core.data.events import Cancelled
+from evpose.core.export.chunks import result_bytes
 from evpose.core.export.pool import WindowExecutor, run_worker_chunk
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
@@ -130,7 +131,7 @@ class DaskWindows(WindowExecutor):
                 if future.cancelled() or self._stopped:
                     raise Cancelled(f"{spec.out_dir}: export cancelled")
                 results, timings = future.result()
-                planner.record(len(results), timings.get("worker_cpu", sum(timings.values())))
+                planner.record(len(results), timings.get("worker_cpu", sum(timings.values())), result_bytes(results))
                 with self._lock:
                     self._pending.discard(future)
                 submit_more()

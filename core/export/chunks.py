@@ -15,14 +15,18 @@ from __future__ import annotations
 
 import threading
 
-__all__ = ["ChunkPlanner", "MAX_CHUNK_WINDOWS", "PROBE_WINDOWS", "TARGET_TASK_CPU_S"]
+__all__ = ["ChunkPlanner", "MAX_CHUNK_BYTES", "MAX_CHUNK_WINDOWS", "PROBE_WINDOWS", "TARGET_TASK_CPU_S",
+           "result_bytes"]
 
 #: CPU seconds a task aims at (issue 27: 2-10 s).
 TARGET_TASK_CPU_S = 4.0
 #: Windows of a probe chunk (the first chunks of a scene, before any cost is known).
 PROBE_WINDOWS = 4
-#: At most this many windows a chunk (the records and, for HDF5, the frames come back in one message).
+#: At most this many windows a chunk (the records come back in one message) ...
 MAX_CHUNK_WINDOWS = 512
+#: ... and at most about this many bytes of results (HDF5: a DAVIS346 window's frames and label map are ~0.7 MB,
+#: so ~90 windows a chunk; BOP and E-POSE write their files on the worker and return a few hundred bytes).
+MAX_CHUNK_BYTES = 64 << 20
 
 
 class ChunkPlanner:
@@ -30,15 +34,17 @@ class ChunkPlanner:
     (:meth:`record`). Thread-safe; ``sizes`` lists the sizes handed out, in order."""
 
     def __init__(self, tasks: list, *, target_s: float = TARGET_TASK_CPU_S, probe: int = PROBE_WINDOWS,
-                 max_windows: int = MAX_CHUNK_WINDOWS):
+                 max_windows: int = MAX_CHUNK_WINDOWS, max_bytes: int = MAX_CHUNK_BYTES):
         self._tasks = tasks
         self._next = 0
         self._lock = threading.Lock()
         self.target_s = float(target_s)
         self.probe = max(1, int(probe))
         self.max_windows = max(1, int(max_windows))
+        self.max_bytes = max(1, int(max_bytes))
         self.windows_measured = 0
         self.cpu_measured_s = 0.0
+        self.bytes_per_window = 0.0          # the largest result per window seen
         self.sizes: list[int] = []
 
     @property
@@ -57,9 +63,12 @@ class ChunkPlanner:
         cost = self.cpu_per_window_s
         if cost is None:
             return self.probe
+        cap = self.max_windows
+        if self.bytes_per_window > 0:
+            cap = min(cap, max(1, int(self.max_bytes // self.bytes_per_window)))
         if cost <= 0.0:
-            return self.max_windows
-        return int(min(self.max_windows, max(1, round(self.target_s / cost))))
+            return cap
+        return int(min(cap, max(1, round(self.target_s / cost))))
 
     def next(self) -> list | None:
         """The next chunk of consecutive tasks, or None when every task was handed out."""
@@ -72,9 +81,21 @@ class ChunkPlanner:
             self.sizes.append(n)
             return chunk
 
-    def record(self, n_windows: int, cpu_s: float) -> None:
-        """A chunk of ``n_windows`` came back having taken ``cpu_s`` CPU seconds on its worker."""
+    def record(self, n_windows: int, cpu_s: float, n_bytes: int = 0) -> None:
+        """A chunk of ``n_windows`` came back having taken ``cpu_s`` CPU seconds on its worker, its results
+        ``n_bytes`` long (:func:`result_bytes`)."""
         with self._lock:
             if n_windows > 0 and cpu_s >= 0.0:
                 self.windows_measured += int(n_windows)
                 self.cpu_measured_s += float(cpu_s)
+                self.bytes_per_window = max(self.bytes_per_window, n_bytes / n_windows)
+
+
+def result_bytes(results: list) -> int:
+    """The bytes of a chunk's ``(record, payload)`` results that matter for its message: the arrays of the
+    payloads (records are small)."""
+    n = 0
+    for _rec, payload in results:
+        if isinstance(payload, dict):
+            n += sum(int(getattr(v, "nbytes", 0)) for v in payload.values())
+    return n
