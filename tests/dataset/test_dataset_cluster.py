@@ -106,6 +106,20 @@ def test_dataset_export_equals_the_single_scene_exports(dask_client, tiny_datase
     assert all(s["written"] == 0 and s["skipped_complete"] > 0 for s in again.scenes.values())
 
 
+def test_h5_dataset_export_is_byte_identical_to_the_single_scene_export(dask_client, tiny_dataset, tmp_path):
+    """HDF5 through the cluster (frames come back to the driver in chunks capped in bytes): the same file, byte for
+    byte, as the single-scene export in one process."""
+    from evpose.core.dataset.export import export_dataset
+    from evpose.core.export import export_scene
+
+    ref = Dataset.open(tiny_dataset).scenes[0]
+    export_scene(ref.path, "h5", tmp_path / "single")
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "h5", tmp_path / "out")
+    assert res.failed == {}
+    got, want = tree(tmp_path / "out" / ref.name), tree(tmp_path / "single")
+    assert got.keys() == want.keys() and describe_file_differences(got, want) == []
+
+
 def test_bop_export_is_one_dataset(dask_client, tiny_dataset, tmp_path):
     from evpose.core.dataset.export import export_dataset
 
