@@ -419,3 +419,31 @@ def test_how_far_the_camera_turns(mounted, tmp_path):
     (still / "trajectory.csv").write_text("\n".join(",".join(r) for r in [head, *body]) + "\n")
     with Scene.open(still) as scene:
         assert sync_run.camera_turn_deg(scene) < 1e-6
+
+
+def test_window_poses_are_computed_when_indexed_as_for_the_whole_window_at_once():
+    """Issue 25.4: a joint window keeps per event only its knot and fraction (set_window_clock); indexing gives the
+    poses and rates the whole-window computation gave (the former storage), bit for bit."""
+    from types import SimpleNamespace
+
+    from evpose.core.align.joint_model import KnotPoses, set_window_clock
+
+    rng = np.random.default_rng(5)
+    k = 40
+    T_bc = np.stack([make_T(Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix(), rng.normal(0, 0.5, 3))
+                     for _ in range(k)])
+    view = SimpleNamespace(T_base_cam=lambda knots, clock: (T_bc[:len(knots)], np.ones(len(knots), bool)))
+    t = np.sort(rng.integers(1000, 4000, 5000)).astype(np.int64)
+    w = SimpleNamespace(ev_t=t, t0=1000, t1=4000, xy=rng.normal(size=(len(t), 2)))
+    set_window_clock(view, w, None, spacing_us=100)
+    assert isinstance(w.T_cb, KnotPoses) and w.T_cb.shape == (len(t), 3, 4) and w.ok.all()
+    knots = np.arange(900, 4200, 100, dtype=np.int64)
+    T_cb = inv_T(T_bc[:len(knots)])[:, :3, :]
+    j = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, len(knots) - 2)
+    f = ((t - knots[j]) / 100.0)[:, None, None]
+    whole = T_cb[j] * (1.0 - f) + T_cb[j + 1] * f
+    rate = (T_cb[j + 1] - T_cb[j]) / 100.0
+    e = rng.choice(len(t), 700, replace=False)
+    assert np.array_equal(w.T_cb[e], whole[e]) and np.array_equal(w.T_cb.rate(e), rate[e])
+    assert np.array_equal(w.T_cb[e, :3, :3], whole[e, :3, :3]) and np.array_equal(w.T_cb[e, :3, 3], whole[e, :3, 3])
+    assert np.array_equal(w.T_cb[e[3]], whole[e[3]]) and np.array_equal(w.T_cb[e[3]][:3, 3], whole[e[3], :3, 3])
