@@ -36,6 +36,8 @@ from __future__ import annotations
 
 import gc
 import linecache
+import threading
+import time
 import traceback
 
 from PySide6 import QtCore
@@ -45,6 +47,10 @@ from evpose.app.workers import JOB_EVENTS
 
 #: Quiet time after the last session change before memory is released, ms.
 IDLE_MS = 2000
+#: While the user is busy (no quiet period), the heap's free pages are given back at most this often, s, on a thread
+#: of their own (:meth:`IdleReleaser.poke`): freed blocks of the views' computations leave holes in the heap that only
+#: ``malloc_trim`` returns (bench_memory: 100-150 MB free but resident at the end of a session before this).
+BUSY_TRIM_S = 5.0
 
 
 def trim_heap() -> bool:
@@ -66,9 +72,13 @@ class IdleReleaser(QtCore.QObject):
     :class:`~evpose.app.workers.LatestWorker`'s thread between requests (``worker`` None: at once) -- then, when
     all have run, ``gc.collect(1)`` and :func:`release_memory`. ``releases`` counts the completed releases."""
 
-    def __init__(self, parent=None, idle_ms: int = IDLE_MS, tasks=None):
+    def __init__(self, parent=None, idle_ms: int = IDLE_MS, tasks=None, busy_trim_s: float = BUSY_TRIM_S):
         super().__init__(parent)
         self.releases = 0
+        #: heap trims while busy (:meth:`poke`), and the time of the last trim of either kind (time.monotonic)
+        self.busy_trims = 0
+        self.busy_trim_s = float(busy_trim_s)
+        self._last_trim = time.monotonic()
         self._tasks = tasks
         self._pending = 0
         self._connected: set[int] = set()
@@ -79,8 +89,18 @@ class IdleReleaser(QtCore.QObject):
         JOB_EVENTS.ended.connect(self.poke)
 
     def poke(self) -> None:
-        """Something happened: (re)start the quiet period."""
+        """Something happened: (re)start the quiet period; and when the last trim is :attr:`busy_trim_s` old, trim
+        the heap now on a thread of its own (``malloc_trim`` runs without the GIL; the GUI thread waits only if it
+        allocates from the arena being trimmed, a few ms at most)."""
         self.timer.start()
+        now = time.monotonic()
+        if now - self._last_trim >= self.busy_trim_s:
+            self._last_trim = now
+            threading.Thread(target=self._busy_trim, name="heap-trim", daemon=True).start()
+
+    def _busy_trim(self) -> None:
+        trim_heap()
+        self.busy_trims += 1
 
     def _release(self) -> None:
         self.last_released = []
@@ -109,6 +129,7 @@ class IdleReleaser(QtCore.QObject):
     def _give_back(self) -> None:
         gc.collect(1)
         release_memory()
+        self._last_trim = time.monotonic()
         self.releases += 1
 
 

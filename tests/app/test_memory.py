@@ -180,3 +180,17 @@ def test_idle_release_empties_the_prefetch_and_the_caches_of_views_out_of_sight(
     kept = _caches(window)
     assert kept["slices"] > 0 and kept["space-time annotator"] and not kept["residual annotator"], kept
     assert window.last_error is None
+
+
+def test_a_busy_user_gets_the_heap_trimmed_between_quiet_periods(qtbot, monkeypatch):
+    """Scrubbing without a pause: no quiet period, but the free heap pages are given back every busy_trim_s."""
+    trims, releases = [], []
+    monkeypatch.setattr(memory, "trim_heap", lambda: trims.append(1) or True)
+    monkeypatch.setattr(memory, "release_memory", lambda: releases.append(1) or True)
+    r = memory.IdleReleaser(idle_ms=1000, busy_trim_s=0.3)
+    for _ in range(15):                         # activity every 100 ms for 1.5 s: never quiet
+        r.poke()
+        qtbot.wait(100)
+    qtbot.waitUntil(lambda: r.busy_trims == len(trims) >= 3, timeout=2000)
+    assert len(trims) <= 6 and releases == []
+    qtbot.waitUntil(lambda: releases == [1], timeout=3000)
