@@ -288,13 +288,13 @@ def project(run: dict, noop: dict, facts: dict, workers: int) -> dict:
       the process's idle CPU rate (heartbeats) takes its share of the time;
     - scheduler: the tasks at the measured no-op rate.
     """
-    from evpose.core.export.pool import chunk_tasks
+    from bench_cluster_scale import planner_tasks     # the ChunkPlanner's sizes, fed as DaskWindows feeds it
 
     w_total, scenes = EPOSE["windows"], EPOSE["sequences"]
     per_seq = round(w_total / scenes)
-    tasks = scenes * len(chunk_tasks(list(range(per_seq)), workers))
     n = run["written"]
     c_wall, c_cpu = run["compute_s"] / n, run["worker_cpu_s"] / n
+    tasks = scenes * len(planner_tasks(per_seq, workers, c_cpu))
     sched_cpu = noop["central_cpu_ms_per_task"] / 1e3
     n_scenes = len(facts["scenes"])
     idle = run["idle_cpu_rate"]
@@ -453,8 +453,8 @@ Assumptions (figures of the '{run['run']}' {run['format']} run above):
   export: journal, flush, futures); {run['idle_cpu_rate'] * 100:.1f} % of a core idle (heartbeats, nannies; {IDLE_S:g} s after the export);
 - the scheduler: {noop['central_cpu_ms_per_task']:.2f} ms CPU per task and {noop['batch_tasks_per_s']:.0f} tasks/s (no-ops); in the drivers' process on
   one machine, its own process (--scheduler) on four;
-- {EPOSE['sequences']} sequences of ~{EPOSE['windows'] // EPOSE['sequences']} windows, cut into chunks as the export does (chunk_tasks: ~8 chunks
-  per worker per sequence, 1-32 windows); the per-window cost of these 3-5-object YCB scenes;
+- {EPOSE['sequences']} sequences of ~{EPOSE['windows'] // EPOSE['sequences']} windows, cut into chunks as the export does (ChunkPlanner: 2 probes
+  of 4 windows per worker, then 4 s of CPU each, at most 512 windows); the per-window cost of these 3-5-object YCB scenes;
   no queueing for nodes (SLURM), no failures. 'limit' names the longest of the three terms.
 
 What would limit it:
