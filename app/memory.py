@@ -51,6 +51,10 @@ IDLE_MS = 2000
 #: of their own (:meth:`IdleReleaser.poke`): freed blocks of the views' computations leave holes in the heap that only
 #: ``malloc_trim`` returns (bench_memory: 100-150 MB free but resident at the end of a session before this).
 BUSY_TRIM_S = 5.0
+#: Once more this long after a release when nothing has happened since, ms: memory freed after the release without a
+#: session change (the job threads' leftovers once Qt's thread pool lets them go after 30 s idle, late redraws) is
+#: given back too (bench_memory, 10-minute session: 15 MB still trimmable 60 s into the idle phase before this).
+LATE_TRIM_MS = 40_000
 
 
 def trim_heap() -> bool:
@@ -70,11 +74,17 @@ class IdleReleaser(QtCore.QObject):
     """Once the app has been idle for ``idle_ms`` after the last :meth:`poke` (or the end of a background job,
     :data:`~evpose.app.workers.JOB_EVENTS`): runs ``tasks()`` -- ``[(worker, fn)]``, each ``fn`` on its
     :class:`~evpose.app.workers.LatestWorker`'s thread between requests (``worker`` None: at once) -- then, when
-    all have run, ``gc.collect(1)`` and :func:`release_memory`. ``releases`` counts the completed releases."""
+    all have run, ``gc.collect(1)`` and :func:`release_memory`; ``late_trim_ms`` later, if nothing happened in
+    between, :func:`trim_heap` once more. ``releases`` counts the completed releases."""
 
-    def __init__(self, parent=None, idle_ms: int = IDLE_MS, tasks=None, busy_trim_s: float = BUSY_TRIM_S):
+    def __init__(self, parent=None, idle_ms: int = IDLE_MS, tasks=None, busy_trim_s: float = BUSY_TRIM_S,
+                 late_trim_ms: int = LATE_TRIM_MS):
         super().__init__(parent)
         self.releases = 0
+        #: trims :data:`LATE_TRIM_MS` after a release with nothing in between
+        self.late_trims = 0
+        self.late_timer = QtCore.QTimer(self, singleShot=True, interval=int(late_trim_ms))
+        self.late_timer.timeout.connect(self._late_trim)
         #: heap trims while busy (:meth:`poke`), and the time of the last trim of either kind (time.monotonic)
         self.busy_trims = 0
         self.busy_trim_s = float(busy_trim_s)
@@ -93,6 +103,7 @@ class IdleReleaser(QtCore.QObject):
         the heap now on a thread of its own (``malloc_trim`` runs without the GIL; the GUI thread waits only if it
         allocates from the arena being trimmed, a few ms at most)."""
         self.timer.start()
+        self.late_timer.stop()
         now = time.monotonic()
         if now - self._last_trim >= self.busy_trim_s:
             self._last_trim = now
@@ -131,6 +142,12 @@ class IdleReleaser(QtCore.QObject):
         release_memory()
         self._last_trim = time.monotonic()
         self.releases += 1
+        self.late_timer.start()
+
+    def _late_trim(self) -> None:
+        trim_heap()
+        self._last_trim = time.monotonic()
+        self.late_trims += 1
 
 
 class _Task:

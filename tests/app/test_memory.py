@@ -56,14 +56,25 @@ def test_release_memory_drops_the_cached_module_sources():
 def test_idle_releaser_waits_for_a_quiet_period(qtbot, monkeypatch):
     calls = []
     monkeypatch.setattr(memory, "release_memory", lambda: calls.append(1) or True)
-    r = memory.IdleReleaser(idle_ms=1000)
+    trims = []
+    monkeypatch.setattr(memory, "trim_heap", lambda: trims.append(1) or True)
+    r = memory.IdleReleaser(idle_ms=1000, late_trim_ms=600, busy_trim_s=60)
     for _ in range(6):                           # activity every 100 ms: never quiet for 1 s
         r.poke()
         qtbot.wait(100)
     assert calls == []
     qtbot.waitUntil(lambda: calls == [1], timeout=2000)
     qtbot.wait(300)
-    assert calls == [1] and r.releases == 1      # once per quiet period, not periodically
+    assert calls == [1] and r.releases == 1 and trims == []     # once per quiet period, not periodically
+    qtbot.waitUntil(lambda: trims == [1], timeout=2000)        # once more later, if nothing happened
+    qtbot.wait(1500)
+    assert trims == [1] and r.late_trims == 1 and calls == [1]
+    r.poke()                                                    # activity before the late trim: none
+    qtbot.waitUntil(lambda: calls == [1, 1], timeout=3000)
+    qtbot.wait(100)
+    r.poke()
+    qtbot.wait(900)
+    assert trims == [1]
 
 
 def test_main_window_releases_memory_when_the_user_pauses(window, scene_copy, qtbot, monkeypatch):
