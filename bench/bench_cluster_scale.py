@@ -706,37 +706,42 @@ def scale_runs(work: Path, counts: list[int], durations: list[float], cpu_per_wi
 # ----------------------------------------------------------------------------------------------- 4. projection
 def planner_tasks(windows: int, workers: int, cpu_per_window_s: float, probes: bool = True) -> list[int]:
     """The chunk sizes :class:`evpose.core.export.chunks.ChunkPlanner` hands out for one sequence of ``windows``
-    windows on ``workers`` workers, fed as :meth:`DaskWindows.run` feeds it (2 chunks per worker in flight, one
-    more as each completes, the completed chunk's CPU recorded first), every window costing ``cpu_per_window_s``.
-    ``probes=False``: the cost known from the start (what-if: carried over from an earlier sequence)."""
+    windows on ``workers`` workers, fed as :meth:`DaskWindows.run` feeds it (2 chunks per worker in flight once the
+    cost is known, at most ``PROBE_CHUNKS`` probes before; one more as each completes, the completed chunk's CPU
+    recorded first), every window costing ``cpu_per_window_s``. ``probes=False``: the cost known from the start
+    (carried over from an earlier sequence, as ``DaskWindows.prior`` does)."""
     from evpose.core.export.chunks import ChunkPlanner
 
-    planner = ChunkPlanner(list(range(windows)))
-    if not probes:
-        planner.record(1, cpu_per_window_s)
+    planner = ChunkPlanner(list(range(windows)), prior=None if probes else (cpu_per_window_s, 0.0))
     flight: list[int] = []
-    while len(flight) < IN_FLIGHT_PER_WORKER * workers:
-        c = planner.next()
-        if c is None:
-            break
-        flight.append(len(c))
+
+    def fill() -> None:
+        while len(flight) < IN_FLIGHT_PER_WORKER * workers and planner.may_submit(len(flight)):
+            c = planner.next()
+            if c is None:
+                return
+            flight.append(len(c))
+
+    fill()
     while flight:
         k = flight.pop(0)
         planner.record(k, k * cpu_per_window_s)
-        c = planner.next()
-        if c is not None:
-            flight.append(len(c))
+        fill()
     return list(planner.sizes)
 
 
 def epose_tasks(workers: int, cpu_per_window_s: float, probes: bool = True) -> dict:
-    """Tasks of the E-POSE export on ``workers`` workers: the sequences' windows spread evenly (333 k / 306)."""
+    """Tasks of the E-POSE export on ``workers`` workers: the sequences' windows spread evenly (333 k / 306); with
+    ``probes`` the first sequences (one per scene driver) probe, the others start from their measured cost."""
+    from evpose.core.dataset.export import SCENE_DRIVERS
     from evpose.core.export.chunks import PROBE_WINDOWS
 
     q, r = divmod(EPOSE["windows"], EPOSE["sequences"])
-    sizes = {k: planner_tasks(k, workers, cpu_per_window_s, probes) for k in (q, q + 1)}
-    all_sizes = sizes[q] * (EPOSE["sequences"] - r) + sizes[q + 1] * r
-    probes = [s for s in all_sizes if s <= PROBE_WINDOWS] if probes else []
+    sizes = {k: planner_tasks(k, workers, cpu_per_window_s, False) for k in (q, q + 1)}
+    first = planner_tasks(q, workers, cpu_per_window_s, probes)
+    n_first = SCENE_DRIVERS if probes else 0
+    all_sizes = first * n_first + sizes[q] * (EPOSE["sequences"] - r - n_first) + sizes[q + 1] * r
+    probes = [s for s in first if s <= PROBE_WINDOWS] * n_first if probes else []
     # every worker that gets a chunk of a sequence sets its context up once (at least: more when it dropped it)
     contexts = (EPOSE["sequences"] - r) * min(workers, len(sizes[q])) + r * min(workers, len(sizes[q + 1]))
     return {"tasks": len(all_sizes), "probe_tasks": len(probes), "probe_windows": sum(probes), "contexts": contexts,

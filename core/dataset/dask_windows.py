@@ -25,8 +25,9 @@ from evpose.core.export.worker import WorkerContext, WorkerSpec
 
 __all__ = ["DaskWindows", "evict_context", "run_chunk"]
 
-#: Worker contexts kept per worker process (each holds an open event file and mesh caches).
-CONTEXTS_KEPT = 2
+#: Worker contexts kept per worker process (each holds an open event file and mesh caches): more than the scenes
+#: driven at once (core/dataset/export.SCENE_DRIVERS = 3), or chunks of interleaved scenes evict each other's.
+CONTEXTS_KEPT = 4
 _contexts: OrderedDict = OrderedDict()
 _lock = threading.Lock()
 
@@ -86,6 +87,9 @@ class DaskWindows(WindowExecutor):
         self._lock = threading.Lock()
         self._pending: set = set()
         self._stopped = False
+        #: (cpu s, result bytes) per window measured on the last finished scene: the next scene starts from it
+        #: instead of probing again
+        self.prior = None
 
     def cancel_all(self) -> None:
         """Cancel every chunk not yet done (the runs waiting on them end with ``Cancelled``); later
@@ -107,9 +111,12 @@ class DaskWindows(WindowExecutor):
         scene = Path(spec.out_dir).name           # the dataset export writes each scene to OUT/<scene name>
         ac = as_completed()
         active: set = set()
+        if planner.cpu_per_window_s is None and self.prior is not None:
+            planner.record_prior(self.prior)
+        n_workers = self.workers                   # one scheduler round trip per scene, not per submission
 
         def submit_more() -> None:
-            while len(active) < 2 * self.workers:
+            while len(active) < 2 * n_workers and planner.may_submit(len(active)):
                 chunk = planner.next()
                 if chunk is None:
                     return
@@ -137,6 +144,8 @@ class DaskWindows(WindowExecutor):
                 submit_more()
                 yield results, timings
             finished = True
+            if planner.measured is not None:
+                self.prior = planner.measured
         finally:
             self.client.cancel([f for f in active if not f.done()])
             with self._lock:

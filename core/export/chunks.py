@@ -1,8 +1,10 @@
 """Chunks of windows sized in work, not in counts (issue 27.2): each task of a cluster export should take a few
 seconds of a worker's CPU whatever the number of workers and whatever a window costs on that scene.
 
-A scene's first chunks are small probes (:data:`PROBE_WINDOWS` windows); every chunk that comes back tells its
-CPU seconds, and the following chunks hold ``TARGET_TASK_CPU_S / (CPU s per window so far)`` windows (clamped to
+A dataset's first scene starts with at most :data:`PROBE_CHUNKS` small probes (:data:`PROBE_WINDOWS` windows) in
+flight, whatever the number of workers (at 64 workers, two probes per worker put 47 % of E-POSE's windows in
+probe chunks: bench/bench_cluster_scale.py); later scenes start from the cost measured on the earlier ones
+(``prior``). Every chunk that comes back tells its CPU seconds, and the following chunks hold ``TARGET_TASK_CPU_S / (CPU s per window so far)`` windows (clamped to
 ``1 .. MAX_CHUNK_WINDOWS`` and to what is left). A scene whose windows cost 0.2 s gets chunks of ~20 windows, one
 whose windows cost 5 ms gets ~512: per-task overheads (scheduling, the round trip, the result's
 deserialisation, the driver's bookkeeping) stay a small share of the work, and the scheduler sees tasks it
@@ -15,13 +17,15 @@ from __future__ import annotations
 
 import threading
 
-__all__ = ["ChunkPlanner", "MAX_CHUNK_BYTES", "MAX_CHUNK_WINDOWS", "PROBE_WINDOWS", "TARGET_TASK_CPU_S",
-           "result_bytes"]
+__all__ = ["ChunkPlanner", "MAX_CHUNK_BYTES", "MAX_CHUNK_WINDOWS", "PROBE_CHUNKS", "PROBE_WINDOWS",
+           "TARGET_TASK_CPU_S", "result_bytes"]
 
 #: CPU seconds a task aims at (issue 27: 2-10 s).
 TARGET_TASK_CPU_S = 4.0
-#: Windows of a probe chunk (the first chunks of a scene, before any cost is known).
+#: Windows of a probe chunk (before any cost is known) ...
 PROBE_WINDOWS = 4
+#: ... and at most this many probes out before the first comes back.
+PROBE_CHUNKS = 2
 #: At most this many windows a chunk (the records come back in one message) ...
 MAX_CHUNK_WINDOWS = 512
 #: ... and at most about this many bytes of results (HDF5: a DAVIS346 window's frames and label map are ~0.7 MB,
@@ -34,7 +38,7 @@ class ChunkPlanner:
     (:meth:`record`). Thread-safe; ``sizes`` lists the sizes handed out, in order."""
 
     def __init__(self, tasks: list, *, target_s: float = TARGET_TASK_CPU_S, probe: int = PROBE_WINDOWS,
-                 max_windows: int = MAX_CHUNK_WINDOWS, max_bytes: int = MAX_CHUNK_BYTES):
+                 max_windows: int = MAX_CHUNK_WINDOWS, max_bytes: int = MAX_CHUNK_BYTES, prior=None):
         self._tasks = tasks
         self._next = 0
         self._lock = threading.Lock()
@@ -46,6 +50,29 @@ class ChunkPlanner:
         self.cpu_measured_s = 0.0
         self.bytes_per_window = 0.0          # the largest result per window seen
         self.sizes: list[int] = []
+        self._prior = False
+        if prior is not None:
+            self.record_prior(prior)
+
+    def record_prior(self, prior) -> None:
+        """Start from ``prior`` = (cpu s per window, result bytes per window) measured on earlier scenes (no
+        probes); the first chunk of this scene that comes back replaces it."""
+        cost, n_bytes = prior
+        with self._lock:
+            self.windows_measured, self.cpu_measured_s = 1, float(cost)
+            self.bytes_per_window = float(n_bytes)
+            self._prior = True
+
+    @property
+    def measured(self) -> tuple[float, float] | None:
+        """``(cpu s per window, result bytes per window)`` measured so far (a prior for the next scene)."""
+        cost = self.cpu_per_window_s
+        return None if cost is None else (cost, self.bytes_per_window)
+
+    def may_submit(self, in_flight: int) -> bool:
+        """Whether another chunk may go out with ``in_flight`` out: only :data:`PROBE_CHUNKS` probes before the
+        first cost is known (the others would be probes too)."""
+        return self.cpu_per_window_s is not None or in_flight < PROBE_CHUNKS
 
     @property
     def remaining(self) -> int:
@@ -86,6 +113,8 @@ class ChunkPlanner:
         ``n_bytes`` long (:func:`result_bytes`)."""
         with self._lock:
             if n_windows > 0 and cpu_s >= 0.0:
+                if self._prior:              # the scene's own measurement replaces the earlier scenes' cost
+                    self.windows_measured, self.cpu_measured_s, self._prior = 0, 0.0, False
                 self.windows_measured += int(n_windows)
                 self.cpu_measured_s += float(cpu_s)
                 self.bytes_per_window = max(self.bytes_per_window, n_bytes / n_windows)

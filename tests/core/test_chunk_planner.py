@@ -8,14 +8,14 @@ import pytest
 from evpose.core.export.chunks import MAX_CHUNK_WINDOWS, PROBE_WINDOWS, TARGET_TASK_CPU_S, ChunkPlanner
 
 
-def drain(cost_s: float, n: int = 5000, in_flight: int = 4) -> tuple[list[int], list]:
+def drain(cost_s: float, n: int = 5000, in_flight: int = 4, prior=None) -> tuple[list[int], list]:
     """Hand out every chunk of ``n`` windows costing ``cost_s`` CPU s each, ``in_flight`` chunks out at a time
     (as the Dask executor does: the first ones before any cost is known)."""
     tasks = list(range(n))
-    p = ChunkPlanner(tasks)
+    p = ChunkPlanner(tasks, prior=prior)
     out, flying = [], []
     while True:
-        while len(flying) < in_flight:
+        while len(flying) < in_flight and p.may_submit(len(flying)):
             c = p.next()
             if c is None:
                 break
@@ -32,8 +32,8 @@ def drain(cost_s: float, n: int = 5000, in_flight: int = 4) -> tuple[list[int], 
 def test_chunks_hold_the_target_cpu_once_the_cost_is_known(cost_s):
     sizes, handed = drain(cost_s)
     assert handed == list(range(5000))                       # each window once, in order
-    assert sizes[:4] == [PROBE_WINDOWS] * 4                  # probes while nothing is measured
-    steady = sizes[4:-1]                                     # (the last one takes what is left)
+    assert sizes[:2] == [PROBE_WINDOWS] * 2                  # two probes while nothing is measured, not one
+    steady = sizes[2:-1]                                     # per worker (the last one takes what is left)
     expect = min(MAX_CHUNK_WINDOWS, round(TARGET_TASK_CPU_S / cost_s))
     assert steady and all(s == expect for s in steady), (cost_s, steady[:5])
     assert all(2.0 <= s * cost_s <= 10.0 for s in steady) or expect == MAX_CHUNK_WINDOWS
@@ -42,7 +42,7 @@ def test_chunks_hold_the_target_cpu_once_the_cost_is_known(cost_s):
 def test_a_slow_scene_gets_smaller_chunks_than_a_fast_one():
     slow, _ = drain(0.25)
     fast, _ = drain(0.01)
-    assert max(slow[4:]) == 16 and min(fast[4:-1]) == 400
+    assert max(slow[2:]) == 16 and min(fast[2:-1]) == 400
     assert len(slow) > 10 * len(fast) / 2
 
 
@@ -74,3 +74,19 @@ def test_big_results_cap_the_chunk_in_bytes():
     p2 = ChunkPlanner(list(range(5000)))
     p2.record(len(p2.next()), 0.004, result_bytes([({"i": 0}, None)] * 4))  # files written on the worker
     assert len(p2.next()) == 512
+
+
+def test_later_scenes_start_from_the_measured_cost_without_probes():
+    """At 64 workers two probes per worker put half of E-POSE's windows in 4-window chunks
+    (bench/bench_cluster_scale.py); a scene after the first starts from the cost measured on it."""
+    first = ChunkPlanner(list(range(1000)))
+    c = first.next()
+    assert len(c) == PROBE_WINDOWS and first.may_submit(1) and not first.may_submit(2)
+    first.record(len(c), 0.02 * len(c))
+    assert first.may_submit(10) and first.measured == (0.02, 0.0)
+    sizes, handed = drain(0.02, prior=first.measured)
+    assert sizes[0] == 200 and PROBE_WINDOWS not in sizes[:-1] and handed == list(range(5000))
+    # the scene's own cost replaces the prior as soon as its first chunk is back
+    p = ChunkPlanner(list(range(1000)), prior=(0.02, 0.0))
+    p.record(len(p.next()), 0.1 * 200)
+    assert p.cpu_per_window_s == 0.1 and len(p.next()) == 40
