@@ -17,7 +17,8 @@ window manager), as the layout tests simulate a laptop.
    and inside the window, and ``app.layout.layout_problems`` must be empty. Printed: controls checked per part and
    any out of reach.
 2. **Residual-guided nudges.** The clock and every pose are set to the truth; then the chosen object (default: the
-   one with most edge events in the residual table) is moved 5 mm / 3° in camera axes (2.0, -1.5, 4.3) mm — mostly along the line of sight —
+   one with most edge events in the residual table) is moved 5 mm / 3° in camera axes (2.0, -1.5, 4.3) mm — mostly
+   along the line of sight —
    and rotated (2.4, 1.5, 0.9)° — mostly a tilt. Screenshot ``residual_1366x768.png`` (the residual view in front,
    that object selected). Then the "user" works the pose panel's twelve nudge buttons (camera axes; steps 1 mm /
    0.5°, then 0.5 mm / 0.1°, then 0.1 mm / 0.05°) reading only the residual view's table for the object (mean

@@ -6,8 +6,8 @@ flight, whatever the number of workers (at 64 workers, two probes per worker put
 probe chunks: bench/bench_cluster_scale.py); later scenes start from the cost measured on the earlier ones
 (``prior``). Every chunk that comes back tells its CPU seconds, and the following chunks hold
 ``TARGET_TASK_CPU_S / (CPU s per window so far)`` windows (clamped to ``1 .. MAX_CHUNK_WINDOWS``, to
-:data:`MAX_CHUNK_BYTES` of results and to what is left). A scene whose windows cost 0.2 s gets chunks of ~20 windows, one
-whose windows cost 5 ms gets ~512: per-task overheads (scheduling, the round trip, the result's
+:data:`MAX_CHUNK_BYTES` of results and to what is left). A scene whose windows cost 0.2 s gets chunks of ~20
+windows, one whose windows cost 5 ms gets ~512: per-task overheads (scheduling, the round trip, the result's
 deserialisation, the driver's bookkeeping) stay a small share of the work, and the scheduler sees tasks it
 can place (~1 per 4 s per worker: 16 tasks/s for 64 workers) instead of ~150 small ones per second.
 
