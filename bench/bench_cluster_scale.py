@@ -58,7 +58,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import DATA, ensure_ycb_scene, run_dir  # bench/ is the script's folder
+from synth_scenes import DATA, ensure_ycb_scene, run_dir, tree_size  # bench/ is the script's folder
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
@@ -358,17 +358,6 @@ class ThreadCpu:
         return {"total_s": total, "persistent_s": persistent, "transient_s": max(0.0, total - sum(persistent.values()))}
 
 
-def count_tree(root: Path) -> tuple[int, int]:
-    """Bytes and files under ``root`` (each inode once)."""
-    seen, size = set(), 0
-    for p in root.rglob("*"):
-        st = p.lstat()
-        if p.is_file() and (st.st_dev, st.st_ino) not in seen:
-            seen.add((st.st_dev, st.st_ino))
-            size += st.st_size
-    return size, len(seen)
-
-
 #: The sleeping workers' own periodic work, which a real node's worker pays on its own core (measured with the
 #: defaults on the real export's workers: the projection's idle share), made rare so that 64 of them fit on 2
 #: cores: the event loop's 20 ms tick, the 10 ms statistical profiler, the 0.5 s system monitor (and, by
@@ -477,7 +466,7 @@ def real_export(work: Path, copies: int, workers: int = 2) -> dict:
             out = work / "export_epose"
             captured: dict = {}
             a = _one_export(client, cl, dataset, out, captured)
-            size, files = count_tree(out)
+            size, files = tree_size(out)
             shutil.rmtree(out, ignore_errors=True)
             b = _one_export(client, cl, dataset, work / "export_long", window_us=LONG_WINDOW_US)
             z = _one_export(client, cl, dataset, work / "export_none", only_verified=True)   # no window

@@ -46,7 +46,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import ensure_ycb_dataset, run_dir  # bench/ is the script's folder
+from synth_scenes import ensure_ycb_dataset, run_dir, tree_size  # bench/ is the script's folder
 
 #: No-op tasks submitted at once to measure the scheduler's rate; one at a time for the round trip.
 NOOP_BATCH = 1000
@@ -68,17 +68,6 @@ def central_cpu_s() -> float:
     """CPU seconds of this process (the client, the scene drivers, and a LocalCluster's scheduler and nannies)."""
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
-
-
-def tree_size(root: Path) -> tuple[int, int]:
-    """Bytes and files under ``root``, each inode once (the BOP dataset's files are hard links)."""
-    seen, size = set(), 0
-    for p in root.rglob("*"):
-        st = p.lstat()
-        if p.is_file() and (st.st_dev, st.st_ino) not in seen:
-            seen.add((st.st_dev, st.st_ino))
-            size += st.st_size
-    return size, len(seen)
 
 
 def worker_probe() -> dict:

@@ -167,12 +167,17 @@ def main() -> int:
             sys.exit("bench_user_session: no DISPLAY and no xvfb-run")
         os.environ.pop("QT_QPA_PLATFORM", None)
         return subprocess.call(XVFB + [sys.executable, *sys.argv])
+    sys.path.insert(0, str(BENCH))
+    from synth_scenes import run_dir
 
-    import tempfile
+    with run_dir("user_session") as tmp:      # the run's own folder, removed with all in it on any exit
+        return session(args, tmp)
 
+
+def session(args, tmp: Path) -> int:
+    """The scripted session (see the module docstring) in the run's folder ``tmp``."""
     import numpy as np
 
-    sys.path.insert(0, str(BENCH))
     from bench_scrub import run_until
     from synth_scenes import ensure_ycb_scene
 
@@ -188,12 +193,12 @@ def main() -> int:
     sampler = RssSampler()
     sampler.start()
     qapp = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
-    tmp = Path(tempfile.mkdtemp(prefix="bench_user_session_"))
     src = Path(args.scene) if args.scene else ensure_ycb_scene()
     scene_dir = tmp / "scene"             # a copy: the session writes corrections (inputs stay untouched)
     shutil.copytree(src, scene_dir)
     gt = load_ground_truth(scene_dir)
-    window = MainWindow(Settings(QtCore.QSettings(str(tmp / "settings.ini"), QtCore.QSettings.IniFormat)))
+    qsettings = QtCore.QSettings(str(tmp / "settings.ini"), QtCore.QSettings.IniFormat)
+    window = MainWindow(Settings(qsettings))
     window.modal_dialogs = False
     window.auto_answer["Unsaved corrections"] = 0x00800000
     window.resize(WINDOW_W, WINDOW_H)
@@ -329,7 +334,13 @@ def main() -> int:
     say(f"RSS: start {rss_start:.0f} MB, peak {max(samples):.0f} MB, end {rss_mb():.0f} MB "
         f"(the 10-minute session: bench/bench_memory.py); load average {os.getloadavg()[0]:.1f}")
     window.close()
-    shutil.rmtree(tmp, ignore_errors=True)
+    # the window and its settings go now: QSettings writes its file when destroyed, and at the interpreter's exit
+    # that would put settings.ini back into the run's folder after run_dir removed it
+    import shiboken6
+
+    shiboken6.delete(window)
+    qsettings.sync()
+    shiboken6.delete(qsettings)
     if args.json:
         print(json.dumps(out, default=float))
     return 0

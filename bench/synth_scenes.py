@@ -43,6 +43,17 @@ def run_dir(prefix: str, root: Path | None = None):
         shutil.rmtree(path, ignore_errors=True)
 
 
+def tree_size(root: Path) -> tuple[int, int]:
+    """Bytes and files under ``root``, each inode once (a BOP dataset's files are hard links)."""
+    seen, size = set(), 0
+    for p in root.rglob("*"):
+        st = p.lstat()
+        if p.is_file() and (st.st_dev, st.st_ino) not in seen:
+            seen.add((st.st_dev, st.st_ino))
+            size += st.st_size
+    return size, len(seen)
+
+
 def file_create_ms(folder: Path, n: int = 300) -> float:
     """Median time to create, write (3 kB), close and rename one new file in ``folder`` (ms): the filesystem's
     own cost per output file, which dominates an export that writes a dozen small files per window on a slow
