@@ -14,7 +14,7 @@ import time
 
 from PySide6 import QtCore
 
-from evpose.app.view_feed import ViewFeed
+from evpose.app.view_feed import ViewFeed, in_sight
 from evpose.core.data.event_cache import EventChunkCache
 from evpose.core.views.frame import EventFrame, FrameComputer, FrameData
 from evpose.core.views.kymograph import KymographComputer, KymographData, KymographRequest
@@ -27,11 +27,6 @@ __all__ = ["ViewFeeds", "SPACETIME_DEBOUNCE_MS"]
 SPACETIME_DEBOUNCE_MS = 250
 #: decoded event blocks kept by the idle release (the most recently used: the window on screen and its neighbours)
 IDLE_EVENT_BYTES = 1 << 20
-
-
-def _shown(widget) -> bool:
-    """True while some of ``widget`` (None: no such view) can be seen: not closed, not a tab behind another."""
-    return widget is not None and not widget.isHidden() and not widget.visibleRegion().isEmpty()
 
 
 def _timeline(req):
@@ -95,9 +90,9 @@ class ViewFeeds(QtCore.QObject):
         c = self._computers
         tasks = [(None, lambda: self.event_cache.shrink(IDLE_EVENT_BYTES)),
                  (self.frame.worker, c["frame"].release_prefetched)]
-        if not _shown(self.spacetime_dock):
+        if not in_sight(self.spacetime_dock):
             tasks.append((self.spacetime.worker, c["spacetime"].release_caches))
-        if not _shown(self.window.kymograph):
+        if not in_sight(self.window.kymograph):
             tasks.append((self.kymograph.worker, c["kymograph"].release_caches))
         return tasks
 
@@ -118,8 +113,7 @@ class ViewFeeds(QtCore.QObject):
         return self.spacetime_dock is not None and not self.spacetime_dock.isHidden()
 
     def _kymograph_in_sight(self) -> bool:
-        view = self.window.kymograph
-        return view is not None and not view.visibleRegion().isEmpty()
+        return in_sight(self.window.kymograph)
 
     def _kymograph_request(self):
         s, view = self.window.session, self.window.kymograph

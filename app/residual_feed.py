@@ -12,7 +12,7 @@ import time
 
 from PySide6 import QtCore, QtWidgets
 
-from evpose.app.view_feed import ViewFeed
+from evpose.app.view_feed import ViewFeed, in_sight
 from evpose.core.signals import Change
 
 __all__ = ["ResidualFeed", "RESIDUAL_KINDS"]
@@ -101,7 +101,7 @@ class ResidualFeed(QtCore.QObject):
             self.dock.raise_()
 
     def in_sight(self) -> bool:
-        return self.dock is not None and not self.dock.isHidden() and not self.dock.visibleRegion().isEmpty()
+        return in_sight(self.dock)
 
     def idle_release_tasks(self) -> list:
         """The idle release's task (see :meth:`evpose.app.feeds.ViewFeeds.idle_release_tasks`): the annotator is

@@ -20,7 +20,13 @@ from PySide6 import QtCore
 
 from evpose.app.workers import LatestWorker
 
-__all__ = ["ViewFeed"]
+__all__ = ["ViewFeed", "in_sight"]
+
+
+def in_sight(widget) -> bool:
+    """True while some of ``widget`` (None: no such view) can be seen: not closed, not a tab behind another, not in
+    a minimised window."""
+    return widget is not None and not widget.isHidden() and not widget.visibleRegion().isEmpty()
 
 
 class ViewFeed(QtCore.QObject):
