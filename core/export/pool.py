@@ -62,8 +62,7 @@ def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, repo
     :class:`~evpose.core.data.events.Cancelled`. An ``executor`` takes the place of ``jobs``."""
     if executor is not None and tasks:
         planner = ChunkPlanner(tasks)        # chunks sized in CPU seconds as their costs come back
-        _run_chunks(ctx, tasks, records, summary, report, cancel,
-                    lambda _chunks: executor.run(spec, planner, f"{ctx.out_dir}|{ctx.sha}"), executor.workers)
+        _run_chunks(ctx, records, summary, report, cancel, executor.run(spec, planner, f"{ctx.out_dir}|{ctx.sha}"))
         summary.chunks = list(planner.sizes)
     elif jobs == 1 or len(tasks) <= 1:
         _run_serial(ctx, spec, tasks, records, summary, report, cancel)
@@ -100,8 +99,8 @@ def _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs) -> None:
     pool = mp.get_context("spawn").Pool(jobs, initializer=_worker_init, initargs=(spec,))
     ok = False
     try:
-        _run_chunks(ctx, tasks, records, summary, report, cancel,
-                    lambda chunks: pool.imap_unordered(_worker_run, chunks), jobs, t_pool)
+        _run_chunks(ctx, records, summary, report, cancel,
+                    pool.imap_unordered(_worker_run, chunk_tasks(tasks, jobs)), t_pool)
         ok = True
     finally:
         if ok:
@@ -111,16 +110,16 @@ def _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs) -> None:
         pool.join()
 
 
-def _run_chunks(ctx, tasks, records, summary, report, cancel, start, workers: int, t_pool: float | None = None) -> None:
-    """Accept the chunk results ``start(chunks)`` yields, in completion order (``t_pool``: when the
+def _run_chunks(ctx, records, summary, report, cancel, results_iter, t_pool: float | None = None) -> None:
+    """Accept the chunk results ``results_iter`` yields, in completion order (``t_pool``: when the
     workers were asked for, for ``summary.pool_startup_s``)."""
     t_pool = time.perf_counter() if t_pool is None else t_pool
     n_done = 0
-    results_iter = start(chunk_tasks(tasks, workers))
     try:
         for results, timings in results_iter:
             if n_done == 0:
-                summary.pool_startup_s = max(0.0, time.perf_counter() - t_pool - sum(timings.values()))
+                work_s = sum(v for k, v in timings.items() if k != "worker_cpu")     # (the stages' wall time)
+                summary.pool_startup_s = max(0.0, time.perf_counter() - t_pool - work_s)
             for rec, payload in results:
                 _accept(ctx, rec["i"], rec, payload, records, summary)
             n_done += len(results)
