@@ -527,7 +527,7 @@ class SleepSpec:
 def sleep_chunk(spec, key: str, tasks: list):
     """Stands in for :func:`evpose.core.dataset.dask_windows.run_chunk` (same arguments): sleeps the seconds the
     key names (``sleep|<seconds>|<driver>``) and returns what ``run_chunk`` returns for ``len(tasks)`` E-POSE
-    windows (their records, no payload, the stage timings), with the worker-side start and end times."""
+    windows (their records, no payload, their journal lines, the stage timings), with the worker-side start and end times."""
     import time as _t
 
     d = float(key.split("|")[1])
@@ -535,7 +535,8 @@ def sleep_chunk(spec, key: str, tasks: list):
     _t.sleep(d)
     t1 = _t.time()
     n_events = round(EPOSE["events"] / EPOSE["windows"])
-    results = [({"i": i, "status": "written", "n_events": n_events}, None) for i in range(len(tasks))]
+    results = [({"i": i, "status": "written", "n_events": n_events}, None,
+                f'{{"i":{i},"status":"written","n_events":{n_events}}}') for i in range(len(tasks))]
     return results, {"events": 0.0, "annotate": 0.0, "images": 0.0, "mat": 0.0, "write": 0.0, "worker_cpu": 0.0,
                      "t0": t0, "t1": t1}
 

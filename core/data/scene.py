@@ -23,6 +23,7 @@ from evpose.core.data.geometry import inv_T
 from evpose.core.data.manifest import NoPosesError, SceneError, SceneManifest
 from evpose.core.data.manifest_reader import load_manifest
 from evpose.core.data.mesh_closure import cached_cull_sign
+from evpose.core.data.model_cache import file_identity, shared_model
 from evpose.core.data.objects import (
     ObjectModel,
     ObjectModelError,
@@ -165,9 +166,10 @@ class Scene:
         if name not in self._models:
             spec = self.manifest.object(name)
             i = self.object_names.index(name)
-            try:
-                model = ObjectModel.from_file(spec.mesh, name=name, mesh_scale=spec.mesh_scale,
-                                              class_id=spec.class_id, symmetric=spec.symmetric)
+            try:        # shared with the other scenes of this process that load the same file alike
+                model = shared_model(self._model_key(name), lambda: ObjectModel.from_file(
+                    spec.mesh, name=name, mesh_scale=spec.mesh_scale, class_id=spec.class_id,
+                    symmetric=spec.symmetric))
             except ObjectModelError as exc:
                 raise SceneError(self.manifest.path, f"objects[{i}].mesh", str(exc)) from None
             lo, hi = model.bbox_min_max
@@ -218,10 +220,25 @@ class Scene:
         identical to :meth:`model`'s, rendering is faster for coarse CAD meshes."""
         key = ("raster", name)
         if key not in self._models:
-            model = raster_friendly(self.model(name))
-            cached_cull_sign(model.vertices_m, model.faces)      # paid here, not by the first frame
-            self._models[key] = model
+            base = self.model(name)
+            file_key = self._model_key(name)
+
+            def load():
+                model = raster_friendly(base)
+                cached_cull_sign(model.vertices_m, model.faces)      # paid here, not by the first frame
+                return model
+
+            self._models[key] = shared_model(None if file_key is None else ("raster",) + file_key, load)
         return self._models[key]
+
+    def _model_key(self, name: str) -> tuple | None:
+        """The key of ``name``'s model in the process's shared models (:mod:`evpose.core.data.model_cache`):
+        the mesh file's identity and the load arguments; None when the file cannot be stat-ed."""
+        spec = self.manifest.object(name)
+        ident = file_identity(spec.mesh)
+        if ident is None:
+            return None
+        return ident + (str(spec.mesh), name, float(spec.mesh_scale), int(spec.class_id), bool(spec.symmetric))
 
     @property
     def models(self) -> list[ObjectModel]:

@@ -122,10 +122,10 @@ class ChunkPlanner:
 
 
 def result_bytes(results: list) -> int:
-    """The bytes of a chunk's ``(record, payload)`` results that matter for its message: the arrays of the
-    payloads (records are small)."""
+    """The bytes of a chunk's ``(record, payload, journal line)`` results that matter for its message: the arrays of
+    the payloads (records and lines are small)."""
     n = 0
-    for _rec, payload in results:
+    for _rec, payload, _line in results:
         if isinstance(payload, dict):
             n += sum(int(getattr(v, "nbytes", 0)) for v in payload.values())
     return n

@@ -202,7 +202,7 @@ class H5Writer(FormatWriter):
         return {w.index: {"i": w.index, "status": "written" if v else "unlabeled"}
                 for w, v, d in zip(sel, written, done) if d}
 
-    def accept(self, ctx, record, payload) -> None:
+    def accept(self, ctx, record, payload, line=None) -> None:
         buf = ctx.extra["h5_buffer"]
         buf[payload["row"]] = payload
         if len(buf) >= _BLOCK:

@@ -13,7 +13,13 @@ from pathlib import Path
 
 from evpose.core.data.os_errors import with_path
 
-__all__ = ["Journal"]
+__all__ = ["Journal", "journal_line"]
+
+
+def journal_line(rec: dict) -> str:
+    """A window's journal line (without its newline). Workers encode their records' lines themselves
+    (:func:`evpose.core.export.pool.run_worker_chunk`), so the export's driver only appends text."""
+    return json.dumps(rec, separators=(",", ":"))
 
 
 class Journal:
@@ -52,8 +58,9 @@ class Journal:
         """Lines appended since the last :meth:`sync` (not in the file yet)."""
         return self._since_sync
 
-    def append(self, rec: dict) -> None:
-        self._buf += json.dumps(rec, separators=(",", ":")).encode()
+    def append(self, rec: dict, line: str | None = None) -> None:
+        """Buffer ``rec``'s line (``line``: :func:`journal_line` of ``rec``, when the worker encoded it)."""
+        self._buf += (journal_line(rec) if line is None else line).encode()
         self._buf += b"\n"
         self._since_sync += 1
 

@@ -19,6 +19,7 @@ import time
 
 from evpose.core.data.events import Cancelled
 from evpose.core.export.chunks import ChunkPlanner
+from evpose.core.export.journal import journal_line
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
 __all__ = ["FLUSH_WINDOWS", "FLUSH_SECONDS", "WindowExecutor", "chunk_tasks", "run_worker_chunk", "run_windows"]
@@ -70,8 +71,8 @@ def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, repo
         _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs)
 
 
-def _accept(ctx, index: int, rec: dict, payload, records: dict, summary) -> None:
-    ctx.writer.accept(ctx, rec, payload)
+def _accept(ctx, index: int, rec: dict, payload, records: dict, summary, line: str | None = None) -> None:
+    ctx.writer.accept(ctx, rec, payload, line)
     records[index] = rec
     if rec.get("status") == "written":
         summary.written += 1
@@ -120,8 +121,8 @@ def _run_chunks(ctx, records, summary, report, cancel, results_iter, t_pool: flo
             if n_done == 0:
                 work_s = sum(v for k, v in timings.items() if k != "worker_cpu")     # (the stages' wall time)
                 summary.pool_startup_s = max(0.0, time.perf_counter() - t_pool - work_s)
-            for rec, payload in results:
-                _accept(ctx, rec["i"], rec, payload, records, summary)
+            for rec, payload, line in results:
+                _accept(ctx, rec["i"], rec, payload, records, summary, line)
             n_done += len(results)
             _add_timings(summary, timings)
             _maybe_flush(ctx, len(results))
@@ -167,12 +168,16 @@ def _worker_run(tasks: list) -> tuple[list, dict]:
 
 
 def run_worker_chunk(wctx: WorkerContext, tasks: list) -> tuple[list, dict]:
-    """Run a chunk of window tasks in a worker; returns their ``(record, payload)`` and the stage timings, with
-    the CPU seconds the chunk took on this thread as ``worker_cpu`` (the window work is single-threaded: numba
-    kernels serial, OpenCV at one thread), from which :class:`~evpose.core.export.chunks.ChunkPlanner` sizes
-    the next chunks."""
+    """Run a chunk of window tasks in a worker; returns their ``(record, payload, journal line)`` and the stage
+    timings, with the CPU seconds the chunk took on this thread as ``worker_cpu`` (the window work is
+    single-threaded: numba kernels serial, OpenCV at one thread), from which
+    :class:`~evpose.core.export.chunks.ChunkPlanner` sizes the next chunks. The journal lines are encoded here so
+    that the driver's work per window is an append (issue 27.2)."""
     c0 = time.thread_time()
-    out = [wctx.run(t) for t in tasks]
+    out = []
+    for t in tasks:
+        rec, payload = wctx.run(t)
+        out.append((rec, payload, journal_line(rec)))
     timings = wctx.take_timings()
     timings["worker_cpu"] = time.thread_time() - c0
     return out, timings

@@ -48,7 +48,7 @@ from evpose.core.export.summary import ExportSummary, count_review_usage, set_un
 from evpose.core.export.windows import build_windows, review_usage, scene_staleness, unlabeled_windows
 from evpose.core.export.worker import STAGES, WorkerSpec
 from evpose.core.export.writer import ExportContext, FormatWriter, WindowTask
-from evpose.core.label.labels import Request
+from evpose.core.label.labels import label_poses
 from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["run_export"]
@@ -143,11 +143,8 @@ def _select(ctx, only_verified: bool, include_stale: bool) -> _Selection:
         keep, touched, reasons = np.ones(len(windows), bool), np.zeros(len(windows), bool), []
     selected = [w for w, k in zip(windows, keep) if k]
     t_lab = np.array([w.t_label_us for w in selected], np.int64)
-    if len(selected) and scene.has_poses:
-        from evpose.core.label.annotate import Annotator     # (the rasteriser's module: not for event-only scenes)
-
-        pose_ann = Annotator(scene, Request(keypoints=False, masks_visible=False), objects=scene.object_names)
-        T_co, T_bc, valid = pose_ann.poses(t_lab)
+    if len(selected) and scene.has_poses:      # poses only: the driver loads no mesh (issue 27.2)
+        T_co, T_bc, valid = label_poses(scene, t_lab, scene.object_names)
     else:                       # no window, or an event-only scene: no pose, no label
         N = len(selected)
         T_co, T_bc, valid = np.zeros((N, len(scene.object_names), 4, 4)), np.full((N, 4, 4), np.nan), np.zeros(N, bool)

@@ -82,8 +82,9 @@ class FormatWriter:
     def last_file(self, ctx: "ExportContext", index: int) -> Path | None:
         return None
 
-    def accept(self, ctx: "ExportContext", record: dict, payload) -> None:
-        ctx.journal.append(record)
+    def accept(self, ctx: "ExportContext", record: dict, payload, line: str | None = None) -> None:
+        """A window's result arrived (``line``: its journal line, encoded by the worker, or None)."""
+        ctx.journal.append(record, line)
 
     def flush(self, ctx: "ExportContext") -> None:
         """Make the accepted windows durable, then their journal lines ("batch" mode: one ``syncfs``

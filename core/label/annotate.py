@@ -28,7 +28,7 @@ from evpose.core.data.camera import CameraModel
 from evpose.core.data.clock import ClockModel
 from evpose.core.data.events import EventArray
 from evpose.core.data.geometry import apply_T
-from evpose.core.label.labels import ObjectLabel, Request, WindowLabels, mask_bbox
+from evpose.core.label.labels import ObjectLabel, Request, WindowLabels, label_poses, mask_bbox
 from evpose.core.label.raster import Rasterizer
 from evpose.core.label.visibility import box_in_view, boxes_overlap, projected_box, rays_in_box
 from evpose.core.label.windows import Window
@@ -74,10 +74,7 @@ class Annotator:
 
     def poses(self, t_label_us) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(T_cam_obj (N, K, 4, 4), T_base_cam (N, 4, 4), valid (N,))`` at label times."""
-        t = np.atleast_1d(np.asarray(t_label_us, dtype=np.int64))
-        T_bc, valid = self.scene.T_base_cam(t, clock=self.clock)          # interpolated once
-        T_co, _ = self.scene.T_cam_obj(t, self.names, clock=self.clock, base_cam=(T_bc, valid))
-        return T_co, T_bc, valid
+        return label_poses(self.scene, t_label_us, self.names, self.clock)
 
     def no_label_reason(self, t_label_us: int) -> str:
         """Why there is no label at ``t_label_us``: outside the trajectory or in a hole of it."""

@@ -86,3 +86,14 @@ def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int]:
         return (-1, -1, -1, -1)
     rows = np.flatnonzero(mask.any(axis=1))
     return (int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1))
+
+
+def label_poses(scene, t_label_us, names, clock=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(T_cam_obj (N, K, 4, 4), T_base_cam (N, 4, 4), valid (N,))`` of the objects ``names`` at the label times
+    ``t_label_us`` (camera clock, µs), the trajectory interpolated once for all of them. ``scene`` is a
+    :class:`~evpose.core.data.scene.Scene` or a wrapper of one that overrides ``T_base_cam``; no mesh is loaded
+    (the export's driver calls this for every window of a scene)."""
+    t = np.atleast_1d(np.asarray(t_label_us, dtype=np.int64))
+    T_bc, valid = scene.T_base_cam(t, clock=clock)
+    T_co, _ = scene.T_cam_obj(t, names, clock=clock, base_cam=(T_bc, valid))
+    return T_co, T_bc, valid

@@ -66,13 +66,13 @@ def test_big_results_cap_the_chunk_in_bytes():
     p = ChunkPlanner(list(range(5000)))
     chunk = p.next()
     payload = {"frames/counts": np.zeros((2, 260, 346), np.uint16), "frames/three_channel": np.zeros((260, 346, 3), np.uint8)}
-    results = [({"i": i}, payload) for i in chunk]
+    results = [({"i": i}, payload, "") for i in chunk]
     assert result_bytes(results) == len(chunk) * (2 * 260 * 346 * 2 + 260 * 346 * 3)
     p.record(len(chunk), 0.001 * len(chunk), result_bytes(results))     # 1 ms a window: 4000 by CPU alone
     n = len(p.next())
     assert n == MAX_CHUNK_BYTES // (2 * 260 * 346 * 2 + 260 * 346 * 3) and n < 512
     p2 = ChunkPlanner(list(range(5000)))
-    p2.record(len(p2.next()), 0.004, result_bytes([({"i": 0}, None)] * 4))  # files written on the worker
+    p2.record(len(p2.next()), 0.004, result_bytes([({"i": 0}, None, "")] * 4))  # files written on the worker
     assert len(p2.next()) == 512
 
 

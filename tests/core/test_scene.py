@@ -175,3 +175,28 @@ def test_projected_object_lands_in_image(scene_dir):
     T, _ = scene.T_cam_obj(np.array([T0 + 500_000]))
     uv, ok = scene.camera.project(apply_T(T[0, 0], scene.model("box").vertices_m))
     assert ok.all()
+
+
+def test_scenes_share_a_mesh_loaded_alike_and_reload_an_edited_one(scene_dir):
+    """The scenes of a dataset share their objects' models (core/data/model_cache: an export's driver and workers
+    open sequence after sequence); the key is the file's identity and the load arguments, so a mesh edited in
+    place, or the same file at another scale, is loaded anew."""
+    import os
+
+    import trimesh
+
+    a, b = Scene.open(scene_dir), Scene.open(scene_dir)
+    ma = a.model("box")
+    assert b.model("box") is ma and b.raster_model("box") is a.raster_model("box")
+    m = base_manifest()
+    m["objects"][0]["mesh_scale"] = 0.5
+    half = Scene.open(write(scene_dir, m))                   # the same file at half the scale
+    assert half.model("box") is not ma
+    assert np.allclose(half.model("box").vertices_m, ma.vertices_m * 0.5)
+    write(scene_dir, base_manifest())
+    trimesh.creation.box(extents=(0.2, 0.06, 0.1)).export(scene_dir / "models" / "box.ply")   # edited in place
+    st = os.stat(scene_dir / "models" / "box.ply")
+    os.utime(scene_dir / "models" / "box.ply", ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
+    c = Scene.open(scene_dir)
+    assert c.model("box") is not ma
+    assert np.ptp(c.model("box").vertices_m[:, 0]) == pytest.approx(0.2)
