@@ -2,7 +2,13 @@
 time to the first result, memory per worker, and a projection onto the E-POSE dataset.
 
 Run: ``./run bench dataset`` or ``.venv/bin/python bench/bench_dataset.py [--duration 1.5]
-[--formats bop,epose] [--workers 1,2] [--malloc-compare] [--json PATH]`` (about 5 minutes on 2 cores).
+[--formats bop,epose] [--workers 1,2] [--malloc-compare] [--scale-workers 16,64] [--json PATH]`` (about 5 minutes on
+2 cores, and about 15 more for the scale part: ``--scale-workers ''`` leaves it out).
+
+Everything issue 27 asks for in one run: per-worker efficiency (``vs base``) and the 2/1 ratio, tasks per scene and
+their CPU, the drivers' CPU per scene and per window, memory per worker, then (:mod:`bench_cluster_scale`, same run)
+the filesystem's file-creation, fsync and syncfs rates, an export on a real ``dask scheduler``, 16 and 64 worker
+processes whose tasks sleep for the measured task durations, and the E-POSE projection with each limit costed.
 
 The dataset (:func:`synth_scenes.ensure_ycb_dataset`, generated once into ``bench/.data/dataset_ycb``) is
 3 synthetic DAVIS346 scenes with the real YCB meshes of E-POSE (3, 4 and 5 objects; trajectory B at
@@ -486,8 +492,15 @@ def measure(args) -> dict:
                     runs.append(run_cluster(dataset, fmt, n, work, noop=noop, malloc=malloc))
                     print(f"  done {fmt} {runs[-1]['run']}: {runs[-1]['written'] / runs[-1]['wall_s']:.1f} "
                           "windows/s", file=sys.stderr)
-    return {"facts": facts, "runs": runs, "load_before": load0, "load_after": os.getloadavg(),
-            "bench_s": time.perf_counter() - t0, "cores": os.cpu_count()}
+    out = {"facts": facts, "runs": runs, "load_before": load0, "load_after": os.getloadavg(),
+           "bench_s": time.perf_counter() - t0, "cores": os.cpu_count()}
+    if args.scale_workers:         # the same run: a real scheduler at 16 and 64 workers, the filesystem, the projection
+        import bench_cluster_scale
+
+        out["cluster_scale"] = bench_cluster_scale.measure(argparse.Namespace(
+            workers=args.scale_workers, durations=args.scale_durations, measure_s=args.scale_measure_s,
+            copies=args.scale_copies, cpu_per_window_ms=None))
+    return out
 
 
 def main(argv=None) -> int:
@@ -498,6 +511,12 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     ap.add_argument("--malloc-compare", action="store_true",
                     help=f"also run the first format without Dask's {DASK_MALLOC_KEY} in the workers (adds ~1 min)")
+    ap.add_argument("--scale-workers", default="16,64",
+                    help="also measure a real scheduler with this many worker processes whose tasks sleep, the "
+                         "filesystem and a real-scheduler export (bench_cluster_scale.py; about 15 minutes; '' skips it)")
+    ap.add_argument("--scale-durations", default="4,probe", help="their task durations, s (bench_cluster_scale.py)")
+    ap.add_argument("--scale-measure-s", type=float, default=30.0, help="steady seconds of each scale run")
+    ap.add_argument("--scale-copies", type=int, default=3, help="scenes of the real-scheduler export")
     ap.add_argument("--print-json", type=Path, metavar="PATH",
                     help="measure nothing: print the report of the figures an earlier --json wrote")
     args = ap.parse_args(argv)
@@ -546,9 +565,16 @@ def report(m: dict) -> list:
     rows = [(name, f"{r['format']} {r['run']}", project(r, ref["noop"], facts, w)) for r in sources for name, w in targets]
     bases = ", ".join(f"{r['format']} {r['written'] / r['wall_s']:.1f} windows/s = "
                       f"{EPOSE['windows'] / (r['written'] / r['wall_s']) / 3600:.1f} h" for r in runs if "malloc" not in r)
-    print(f"\nProjection: E-POSE ({EPOSE['sequences']} sequences, {EPOSE['windows'] // 1000} k windows of 10 ms,"
-          f" {EPOSE['events'] / 1e9:.1f} G events); the single-scene baseline here: {bases}")
+    print(f"\nProjection from the LocalCluster figures: E-POSE ({EPOSE['sequences']} sequences, {EPOSE['windows'] // 1000} k "
+          f"windows of 10 ms, {EPOSE['events'] / 1e9:.1f} G events); the single-scene baseline here: {bases}")
     print_projection(rows, ref, facts)
+    if m.get("cluster_scale"):
+        import bench_cluster_scale
+
+        print("\n" + "=" * 100 + "\nAt scale (bench_cluster_scale.py, same run): the filesystem, an export on a real scheduler,"
+              " 16 and 64 worker processes\nwhose tasks sleep, and the projection with each limit costed (this one"
+              " supersedes the LocalCluster projection above)\n")
+        rows = rows + [("scale", "", p) for p in bench_cluster_scale.report(m["cluster_scale"])]
     return rows
 
 

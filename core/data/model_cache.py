@@ -20,9 +20,9 @@ from typing import Callable
 
 __all__ = ["MAX_BYTES", "clear", "file_identity", "shared_model", "stats"]
 
-#: Bytes of vertex and face arrays the cache keeps (a YCB mesh as E-POSE published it: ~1-5 MB; its raster
-#: variant with long edges split: about as much again).
-MAX_BYTES = 192 << 20
+#: Bytes of vertex and face arrays the cache keeps: ~40 objects of E-POSE's YCB meshes (0.75 MB each with its raster
+#: variant: 12.5 k vertices, 25 k faces), small beside a worker's ~400 MB.
+MAX_BYTES = 64 << 20
 
 _lock = threading.Lock()
 _models: OrderedDict = OrderedDict()
