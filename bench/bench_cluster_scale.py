@@ -552,6 +552,13 @@ class _SleepPlanner:
             return None
         return [bytes(self.window_bytes) for _ in range(self.n)]
 
+    #: what DaskWindows.run asks of a ChunkPlanner: a known cost (no probes, no prior), nothing measured
+    cpu_per_window_s = 0.0
+    measured = None
+
+    def may_submit(self, in_flight: int) -> bool:
+        return True
+
     def record(self, *args) -> None:
         pass
 

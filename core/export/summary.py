@@ -1,7 +1,8 @@
 """What an export did: :class:`ExportSummary`, returned by every export and printed by the CLI."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import copy
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -80,9 +81,16 @@ class ExportSummary:
     chunks: list = field(default_factory=list)
 
     def to_json(self, *, with_files: bool = True) -> dict:
-        d = asdict(self)
+        """A JSON-able copy (``with_files=False``: ``n_files`` instead of the list). The file list, one name per
+        file (16 a 5-object E-POSE window), is copied as a list of its strings: ``dataclasses.asdict`` deep-copied
+        it name by name, ~0.5 ms per window in the dataset export's driver (issue 27.2)."""
+        d = {}
+        for f in fields(self):
+            if f.name != "files":
+                d[f.name] = copy.deepcopy(getattr(self, f.name))
+            elif with_files:
+                d["files"] = list(self.files)
         if not with_files:
-            d.pop("files")
             d["n_files"] = len(self.files)
         return d
 
