@@ -90,6 +90,10 @@ class DaskWindows(WindowExecutor):
         #: (cpu s, result bytes) per window measured on the last finished scene: the next scene starts from it
         #: instead of probing again
         self.prior = None
+        #: whether scenes are still to come (set by the dataset export; None: this is the only one): a scene's end is
+        #: cut finer only when it is the last work (:class:`~evpose.core.export.chunks.ChunkPlanner`)
+        self.more_scenes = None
+        self._runs = 0
 
     def cancel_all(self) -> None:
         """Cancel every chunk not yet done (the runs waiting on them end with ``Cancelled``); later
@@ -114,6 +118,7 @@ class DaskWindows(WindowExecutor):
         if planner.cpu_per_window_s is None and self.prior is not None:
             planner.record_prior(self.prior)
         n_workers = self.workers                   # one scheduler round trip per scene, not per submission
+        planner.tail_workers = lambda: n_workers if self._is_last_work() else 0
 
         def submit_more() -> None:
             while len(active) < 2 * n_workers and planner.may_submit(len(active)):
@@ -131,6 +136,8 @@ class DaskWindows(WindowExecutor):
                     self.events.track(f.key, scene)
 
         finished = False
+        with self._lock:
+            self._runs += 1
         try:
             submit_more()
             for future in ac:
@@ -147,11 +154,19 @@ class DaskWindows(WindowExecutor):
             if planner.measured is not None:
                 self.prior = planner.measured
         finally:
+            with self._lock:
+                self._runs -= 1
             self.client.cancel([f for f in active if not f.done()])
             with self._lock:
                 self._pending.difference_update(active)
             if finished:
                 self._evict(key)
+
+    def _is_last_work(self) -> bool:
+        """No other scene is being run or still to come."""
+        with self._lock:
+            alone = self._runs <= 1
+        return alone and not (self.more_scenes is not None and self.more_scenes())
 
     def _evict(self, key: str) -> None:
         """Every worker drops the finished scene's context (best effort: a worker gone or busy does not fail

@@ -67,7 +67,11 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
             lost = events.text()
             progress(done, text + (f", {lost}" if lost else ""))
 
+    started: set = set()
+    executor.more_scenes = lambda: len(started) < len(dataset.scenes)
+
     def one(ref):
+        started.add(ref.name)
         if stop.is_set():
             return
 

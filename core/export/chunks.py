@@ -11,6 +11,12 @@ windows, one whose windows cost 5 ms gets ~512: per-task overheads (scheduling, 
 deserialisation, the driver's bookkeeping) stay a small share of the work, and the scheduler sees tasks it
 can place (~1 per 4 s per worker: 16 tasks/s for 64 workers) instead of ~150 small ones per second.
 
+The last work of a run is cut finer: when no other scene's chunks can fill the workers (``tail_workers``), a chunk
+holds at most ``remaining / (2 x workers)`` windows, and not less than :data:`MIN_TASK_CPU_S` of CPU, so the workers
+finish together instead of one of them running a last 4 s chunk alone (a single 501-window scene on 2 workers:
+the tail was ~10 % of its wall time, issue 27.1). While other scenes are in flight their chunks fill that time, and
+the chunks keep their size (at 64 workers, splitting every sequence's end would multiply the tasks by ~7).
+
 Windows are cut contiguously in order, so a chunk is a run of consecutive windows (read sequentially from the
 event file); the records are per window, so the output does not depend on the cut.
 """
@@ -18,11 +24,13 @@ from __future__ import annotations
 
 import threading
 
-__all__ = ["ChunkPlanner", "MAX_CHUNK_BYTES", "MAX_CHUNK_WINDOWS", "PROBE_CHUNKS", "PROBE_WINDOWS",
+__all__ = ["ChunkPlanner", "MAX_CHUNK_BYTES", "MAX_CHUNK_WINDOWS", "MIN_TASK_CPU_S", "PROBE_CHUNKS", "PROBE_WINDOWS",
            "TARGET_TASK_CPU_S", "result_bytes"]
 
 #: CPU seconds a task aims at (issue 27: 2-10 s).
 TARGET_TASK_CPU_S = 4.0
+#: The smallest task the tail is cut into, CPU seconds (the per-task overhead stays a few per cent of it).
+MIN_TASK_CPU_S = 0.5
 #: Windows of a probe chunk (before any cost is known) ...
 PROBE_WINDOWS = 4
 #: ... and at most this many probes out before the first comes back.
@@ -51,6 +59,8 @@ class ChunkPlanner:
         self.cpu_measured_s = 0.0
         self.bytes_per_window = 0.0          # the largest result per window seen
         self.sizes: list[int] = []
+        #: workers the rest of this scene is spread over at its end (0: none; a callable is asked at each chunk)
+        self.tail_workers = 0
         self._prior = False
         if prior is not None:
             self.record_prior(prior)
@@ -96,7 +106,12 @@ class ChunkPlanner:
             cap = min(cap, max(1, int(self.max_bytes // self.bytes_per_window)))
         if cost <= 0.0:
             return cap
-        return int(min(cap, max(1, round(self.target_s / cost))))
+        n = int(min(cap, max(1, round(self.target_s / cost))))
+        workers = self.tail_workers() if callable(self.tail_workers) else self.tail_workers
+        if workers:                   # the run's last work: split what is left over the workers
+            share = -(-self.remaining // (2 * int(workers)))
+            n = min(n, max(share, int(round(MIN_TASK_CPU_S / cost)), 1))
+        return n
 
     def next(self) -> list | None:
         """The next chunk of consecutive tasks, or None when every task was handed out."""

@@ -90,3 +90,25 @@ def test_later_scenes_start_from_the_measured_cost_without_probes():
     p = ChunkPlanner(list(range(1000)), prior=(0.02, 0.0))
     p.record(len(p.next()), 0.1 * 200)
     assert p.cpu_per_window_s == 0.1 and len(p.next()) == 40
+
+
+def test_the_last_work_is_split_over_the_workers_not_above_half_a_second():
+    """The end of the run's last scene: at most remaining / (2 workers) windows a chunk, not under MIN_TASK_CPU_S of
+    CPU, so two workers finish together instead of one running a last 4 s chunk alone; while other scenes run
+    (tail_workers 0) the chunks keep their 4 s."""
+    from evpose.core.export.chunks import MIN_TASK_CPU_S, TARGET_TASK_CPU_S
+
+    def cut(tail_workers):
+        p = ChunkPlanner(list(range(1000)), prior=(0.01, 0))         # 10 ms a window: 400 windows = 4 s
+        p.tail_workers = tail_workers
+        out = []
+        while (c := p.next()) is not None:
+            out += c
+        assert out == list(range(1000))
+        return p.sizes
+
+    assert cut(0) == [400, 400, 200]
+    sizes = cut(lambda: 2)
+    assert sizes[0] == 250 and sizes[1] == 188 and max(sizes) <= TARGET_TASK_CPU_S / 0.01
+    assert all(s >= MIN_TASK_CPU_S / 0.01 for s in sizes[:-1]) and sum(sizes) == 1000
+    assert sizes[-2] == 50 and sizes[-1] <= 50 and len(sizes) <= 11

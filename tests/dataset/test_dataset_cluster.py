@@ -479,6 +479,27 @@ def test_local_workers_keep_the_default_malloc_trimming(dask_client):
     assert os.environ.get("MALLOC_TRIM_THRESHOLD_") is None
 
 
+def _worker_periodic_work(dask_worker) -> dict:
+    """Run on a worker (``client.run``): its profiler, its event loop's tick and its system monitor as it runs them."""
+    pcs = dask_worker.periodic_callbacks
+    return {"profile": "profile" in pcs, "tick_ms": pcs["tick"].callback_time,
+            "monitor_ms": pcs["monitor"].callback_time if "monitor" in pcs else None}
+
+
+def test_local_workers_run_without_the_profiler_and_with_a_slow_tick(dask_client):
+    """A Dask worker's statistical profiler and 20 ms tick cost an idle worker 4.2-4.6 % of a core and an export
+    worker 3-4 % more CPU a window (issue 27.1): evpose's local workers run without the profiler, with a 1 s tick and
+    a 5 s system monitor -- also a worker restarted by its nanny (it came back with Dask's defaults at first)."""
+    for restart in (False, True):              # also a worker its nanny started again after a kill
+        if restart:
+            os.kill(next(iter(dask_client.run(os.getpid).values())), signal.SIGKILL)
+            time.sleep(0.5)
+            dask_client.wait_for_workers(2, timeout=60)
+        got = list(dask_client.run(_worker_periodic_work).values())
+        assert len(got) == 2 and all(g["profile"] is False for g in got), got
+        assert all(g["tick_ms"] == 1000 and g["monitor_ms"] in (None, 5000) for g in got), got
+
+
 def test_the_local_cluster_listens_on_the_loopback_interface_only():
     """A local run's scheduler, workers and dashboard bind 127.0.0.1 (before, the dashboard bound every interface)."""
     from evpose.core.dataset.cluster import ClusterSpec, open_client
