@@ -162,6 +162,28 @@ def summaries_totals(summaries: list[dict]) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- runs
+#: The scene of the steady-state figures: one 501-window sequence, long enough that its chunks are the 4 s ones.
+STEADY_SCENE = {"n_objects": 5, "duration_s": 5.0}
+
+
+def steady_export(fmt: str, work: Path, tag: str, executor=None) -> float:
+    """Windows/s of one export of the 5-object 5 s YCB scene (:data:`STEADY_SCENE`) in this process or through
+    ``executor``, after a warm-up export of the same scene in 200 ms windows (so the workers have imported,
+    loaded numba's kernels and measured the cost per window: the steady state of a long dataset export)."""
+    from evpose.core.data.scene import Scene
+    from evpose.core.export import export_scene
+    from synth_scenes import ensure_ycb_scene
+
+    path = ensure_ycb_scene(**STEADY_SCENE)
+    export_scene(Scene.open(path), fmt, work / f"steady_warm_{tag}", executor=executor, window_us=200_000)
+    t = time.perf_counter()
+    s = export_scene(Scene.open(path), fmt, work / f"steady_{tag}", executor=executor)
+    wps = s.written / (time.perf_counter() - t)
+    for sub in (f"steady_warm_{tag}", f"steady_{tag}"):     # this run's own folders (E-POSE: ~280 MB)
+        shutil.rmtree(work / sub, ignore_errors=True)
+    return wps
+
+
 def run_baseline(dataset, fmt: str, work: Path) -> dict:
     """``export_scene(..., jobs=1)`` in this process, scene after scene."""
     from evpose.core.export import export_scene
@@ -176,7 +198,7 @@ def run_baseline(dataset, fmt: str, work: Path) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     tot = summaries_totals(summaries)
     return {"format": fmt, "run": "export_scene jobs=1", "workers": 1, "wall_s": wall, "cpu_s": cpu,
-            "bytes": size, "files": files, **tot}
+            "bytes": size, "files": files, **tot, "steady_wps": steady_export(fmt, work, f"base_{fmt}")}
 
 
 def chunk_figures(stream: list, t_nothing: float, t_export: float) -> dict:
@@ -251,6 +273,9 @@ def run_cluster(dataset, fmt: str, n: int, work: Path, noop: bool, malloc: str =
         peak = sampler.stop()
         per_scene = scene_overhead(client, dataset, fmt, work)
         overhead = noop_overhead(client) if noop else None
+        from evpose.core.dataset.dask_windows import DaskWindows
+
+        steady = steady_export(fmt, work, f"dask{n}_{fmt}_{malloc}", DaskWindows(client))
     if result.failed:
         raise RuntimeError(f"dataset export failed: {result.failed}")
     size, files = tree_size(out)
@@ -258,7 +283,7 @@ def run_cluster(dataset, fmt: str, n: int, work: Path, noop: bool, malloc: str =
     tot = summaries_totals(list(result.scenes.values()))
     chunks = chunk_figures(ts.data, t_nothing, t_export)
     label = f"dask {n}, Dask's malloc trim" if malloc == "dask" else f"dask {n} worker{'s' * (n > 1)}"
-    return {"format": fmt, "run": label, "workers": n, "malloc": malloc, "wall_s": wall,
+    return {"format": fmt, "run": label, "workers": n, "malloc": malloc, "wall_s": wall, "steady_wps": steady,
             "cpu_s": cpu, "idle_cpu_rate": idle_rate, "bytes": size, "files": files, "cluster_start_s": start_s, **tot, **chunks,
             "idle_worker_s": max(0.0, n * wall - chunks["compute_s"]),
             "worker_cpu_s": sum(after[a]["cpu_s"] - before[a]["cpu_s"] for a in after if a in before),
@@ -361,6 +386,27 @@ def print_runs(runs: list[dict]) -> None:
         print(f"{r['format']:<7}{r['run']:<21}{r['written']:>8}{start:>8}{first:>8}{r['wall_s']:>8.1f}{rate:>7.1f}"
               f"{rate / base[r['format']]:>8.2f}{ratio:>6}{cpu:>6.0f}{rss:>15}{r['bytes'] / r['written'] / 1e3:>8.0f}"
               f"{r['files'] / r['written']:>10.1f}")
+
+
+def print_steady(runs: list[dict]) -> None:
+    """Steady state: the 501-window scene exported by warm workers (issue 27.1's per-worker efficiency and 2/1)."""
+    rows = [r for r in runs if r.get("steady_wps") and r.get("malloc", "glibc") == "glibc"]
+    if not rows:
+        return
+    print("\nSteady state: ycb_5obj_5s (5 objects, 501 windows of 10 ms) after a warm-up export of it (workers imported,"
+          " numba loaded,\ncost per window known), win/s; eff = win/s / (workers x export_scene's in this process)")
+    for fmt in dict.fromkeys(r["format"] for r in rows):
+        base = next((r for r in rows if r["format"] == fmt and r["run"].startswith("export_scene")), None)
+        if base is None:
+            continue
+        line = f"  {fmt:<6} export_scene {base['steady_wps']:.1f}"
+        by_n = {r["workers"]: r["steady_wps"] for r in rows if r["format"] == fmt and r is not base}
+        for n, w in sorted(by_n.items()):
+            line += f"; {n} worker{'s' * (n > 1)} {w:.1f} (eff {w / (n * base['steady_wps']):.2f})"
+        if 1 in by_n and 2 in by_n:
+            line += f"; 2/1 = {by_n[2] / by_n[1]:.2f}"
+        print(line)
+    print()
 
 
 def print_cpu_note(runs: list[dict], cores: int) -> None:
@@ -546,6 +592,7 @@ def report(m: dict) -> list:
           " this process + the workers / wall;\nRSS = peak per worker, max of psutil samples and the kernel's"
           " ru_maxrss, one figure per worker")
     print_cpu_note(runs, m["cores"])
+    print_steady(runs)
     print("Per task (a chunk of windows on a worker; Dask task stream) and the stage split per window (ms, summary timings_s)")
     print_tasks(runs)
     print("s/chunk = median compute time of a chunk; 1st = mean first chunk per worker, s (opens the scene, meshes);\n"
