@@ -79,6 +79,8 @@ def run_chunk(spec: WorkerSpec, key: str, tasks: list) -> tuple[list, dict]:
 class DaskWindows(WindowExecutor):
     """Run chunks of windows on the workers of a ``distributed.Client``."""
 
+    syncs_chunks = True          # run_chunk syncs the chunk's files before it returns
+
     def __init__(self, client, *, retries: int = 0, events=None):
         self.client = client
         self.retries = retries        # besides Dask's own rescheduling of tasks of a lost worker

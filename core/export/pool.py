@@ -43,6 +43,11 @@ class WindowExecutor:
     """
 
     workers = 1
+    #: Whether a chunk's files are as durable as ``spec.durable`` asks when its result arrives (the worker synced
+    #: them, as :func:`evpose.core.dataset.dask_windows.run_chunk` does): the driver then writes and fsyncs its
+    #: journal lines without a ``syncfs`` of its own (on ext4 the syncfs's writeback of the workers' files was
+    #: charged to the driver's thread: ~0.5 ms a 16-file E-POSE window, issue 27.2).
+    syncs_chunks = False
 
     def run(self, spec: WorkerSpec, planner, key: str):  # pragma: no cover - interface
         raise NotImplementedError
@@ -62,6 +67,7 @@ def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, repo
     is called after each window (serial) or chunk (pool, executor); ``cancel()`` True raises
     :class:`~evpose.core.data.events.Cancelled`. An ``executor`` takes the place of ``jobs``."""
     if executor is not None and tasks:
+        ctx.extra["chunks_durable"] = bool(executor.syncs_chunks)
         planner = ChunkPlanner(tasks)        # chunks sized in CPU seconds as their costs come back
         _run_chunks(ctx, records, summary, report, cancel, executor.run(spec, planner, f"{ctx.out_dir}|{ctx.sha}"))
         summary.chunks = list(planner.sizes)

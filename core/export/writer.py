@@ -100,9 +100,10 @@ class FormatWriter:
 
     def flush(self, ctx: "ExportContext") -> None:
         """Make the accepted windows durable, then their journal lines ("batch" mode: one ``syncfs``
-        covers every file the workers wrote, whatever process wrote it)."""
+        covers every file the workers wrote, whatever process wrote it; none when the workers synced their chunks,
+        ``ctx.extra["chunks_durable"]``)."""
         if ctx.journal.pending:
-            if ctx.durable == "batch":
+            if ctx.durable == "batch" and not ctx.extra.get("chunks_durable"):
                 t = time.perf_counter()
                 atomic.sync_filesystem(ctx.out_dir)
                 ctx.extra["parent_write_s"] = ctx.extra.get("parent_write_s", 0.0) + time.perf_counter() - t
