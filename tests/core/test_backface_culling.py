@@ -126,9 +126,10 @@ def test_mesh_across_the_near_plane_is_not_culled(raster):
 def test_scene_pays_the_closure_check_when_it_loads_a_model(tiny_scene_dir, monkeypatch):
     """The first frame must not pay for cull_sign (20-70 ms per YCB mesh): Scene.raster_model computes
     it, and renders reuse it (also from other rasterisers and for posed copies of the vertices)."""
-    from evpose.core.data import mesh_closure
+    from evpose.core.data import mesh_closure, model_cache
     from evpose.core.data.scene import Scene
 
+    model_cache.clear()        # models another test of this process loaded would be shared (computed there)
     calls = []
     real = mesh_closure.cull_sign
     monkeypatch.setattr(mesh_closure, "cull_sign", lambda V, F: calls.append(len(F)) or real(V, F))
