@@ -3,7 +3,7 @@ time to the first result, memory per worker, and a projection onto the E-POSE da
 
 Run: ``./run bench dataset`` or ``.venv/bin/python bench/bench_dataset.py [--duration 1.5]
 [--formats bop,epose] [--workers 1,2] [--malloc-compare] [--scale-workers 16,64] [--json PATH]`` (about 5 minutes on
-2 cores, and about 15 more for the scale part: ``--scale-workers ''`` leaves it out).
+2 cores, and about 6-8 more for the scale part: ``--scale-workers ''`` leaves it out).
 
 Everything issue 27 asks for in one run: per-worker efficiency (``vs base``) and the 2/1 ratio, tasks per scene and
 their CPU, the drivers' CPU per scene and per window, memory per worker, then (:mod:`bench_cluster_scale`, same run)
@@ -559,7 +559,7 @@ def main(argv=None) -> int:
                     help=f"also run the first format without Dask's {DASK_MALLOC_KEY} in the workers (adds ~1 min)")
     ap.add_argument("--scale-workers", default="16,64",
                     help="also measure a real scheduler with this many worker processes whose tasks sleep, the "
-                         "filesystem and a real-scheduler export (bench_cluster_scale.py; about 15 minutes; '' skips it)")
+                         "filesystem and a real-scheduler export (bench_cluster_scale.py; about 6-8 minutes; '' skips it)")
     ap.add_argument("--scale-durations", default="4,probe", help="their task durations, s (bench_cluster_scale.py)")
     ap.add_argument("--scale-measure-s", type=float, default=30.0, help="steady seconds of each scale run")
     ap.add_argument("--scale-copies", type=int, default=3, help="scenes of the real-scheduler export")
