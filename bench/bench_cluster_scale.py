@@ -59,7 +59,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import DATA, ensure_ycb_scene, run_dir, tree_size  # bench/ is the script's folder
+from synth_scenes import DATA, ensure_ycb_scene, new_folder, run_dir, tree_size  # bench/ is the script's folder
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
@@ -464,7 +464,7 @@ def real_export(work: Path, copies: int, workers: int = 2) -> dict:
         cl.add_workers(workers)
         with Client(addr, timeout="60s") as client:
             cl.wait_for_workers(client, workers)
-            out = work / "export_epose"
+            out = new_folder(work, "export_epose")           # removed below: only this export's files are in it
             captured: dict = {}
             # a warm-up export first (not measured): it pays what a process pays once (the meshes, shared by the
             # sequences of a dataset: core/data/model_cache), which the slope would otherwise charge to the windows

@@ -52,7 +52,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth_scenes import ensure_ycb_dataset, run_dir, tree_size  # bench/ is the script's folder
+from synth_scenes import ensure_ycb_dataset, new_folder, run_dir, tree_size  # bench/ is the script's folder
 
 #: No-op tasks submitted at once to measure the scheduler's rate; one at a time for the round trip.
 NOOP_BATCH = 1000
@@ -175,12 +175,13 @@ def steady_export(fmt: str, work: Path, tag: str, executor=None) -> float:
     from synth_scenes import ensure_ycb_scene
 
     path = ensure_ycb_scene(**STEADY_SCENE)
-    export_scene(Scene.open(path), fmt, work / f"steady_warm_{tag}", executor=executor, window_us=200_000)
+    warm, out = new_folder(work, f"steady_warm_{tag}"), new_folder(work, f"steady_{tag}")   # created here, empty
+    export_scene(Scene.open(path), fmt, warm, executor=executor, window_us=200_000)
     t = time.perf_counter()
-    s = export_scene(Scene.open(path), fmt, work / f"steady_{tag}", executor=executor)
+    s = export_scene(Scene.open(path), fmt, out, executor=executor)
     wps = s.written / (time.perf_counter() - t)
-    for sub in (f"steady_warm_{tag}", f"steady_{tag}"):     # this run's own folders (E-POSE: ~280 MB)
-        shutil.rmtree(work / sub, ignore_errors=True)
+    for folder in (warm, out):         # removed as soon as measured (E-POSE: ~280 MB): only these exports' files
+        shutil.rmtree(folder, ignore_errors=True)
     return wps
 
 

@@ -43,6 +43,15 @@ def run_dir(prefix: str, root: Path | None = None):
         shutil.rmtree(path, ignore_errors=True)
 
 
+def new_folder(parent: Path, name: str) -> Path:
+    """``parent/name``, created empty here (``FileExistsError`` when it exists): a folder its caller may remove
+    whole later, since nothing in it predates the call (an export writes only its own files into it, and
+    ``shutil.rmtree`` removes symbolic links without following them)."""
+    path = Path(parent) / name
+    path.mkdir()
+    return path
+
+
 def tree_size(root: Path) -> tuple[int, int]:
     """Bytes and files under ``root``, each inode once (a BOP dataset's files are hard links)."""
     seen, size = set(), 0
