@@ -18,7 +18,7 @@ import threading
 from collections import OrderedDict
 from typing import Callable
 
-__all__ = ["MAX_BYTES", "clear", "file_identity", "shared_model", "stats"]
+__all__ = ["MAX_BYTES", "clear", "file_identity", "shared_model"]
 
 #: Bytes of vertex and face arrays the cache keeps: ~40 objects of E-POSE's YCB meshes (0.75 MB each with its raster
 #: variant: 12.5 k vertices, 25 k faces), small beside a worker's ~400 MB.
@@ -27,7 +27,6 @@ MAX_BYTES = 64 << 20
 _lock = threading.Lock()
 _models: OrderedDict = OrderedDict()
 _bytes = 0
-_counts = {"hits": 0, "loads": 0}
 
 
 def file_identity(path) -> tuple | None:
@@ -54,14 +53,12 @@ def shared_model(key: tuple | None, load: Callable[[], object]):
         model = _models.get(key)
         if model is not None:
             _models.move_to_end(key)
-            _counts["hits"] += 1
             return model
     model = load()                       # outside the lock: other scenes' lookups do not wait for a load
     with _lock:
         kept = _models.get(key)
         if kept is not None:
             return kept
-        _counts["loads"] += 1
         n = _nbytes(model)
         if n <= MAX_BYTES:
             _models[key] = model
@@ -73,14 +70,9 @@ def shared_model(key: tuple | None, load: Callable[[], object]):
 
 
 def clear() -> None:
-    """Forget every cached model (tests; a worker's idle release)."""
+    """Forget every cached model."""
     global _bytes
     with _lock:
         _models.clear()
         _bytes = 0
 
-
-def stats() -> dict:
-    """``{"models", "bytes", "hits", "loads"}`` of this process."""
-    with _lock:
-        return {"models": len(_models), "bytes": _bytes, **_counts}

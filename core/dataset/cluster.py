@@ -40,9 +40,9 @@ WORKER_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": 
 #: thread each 10 ms, for the dashboard's profile page), the event loop's 20 ms tick (it only watches for a blocked
 #: loop) and the 0.5 s system monitor. With Dask's defaults an idle worker took 4.2-4.6 % of a core and an export
 #: worker 3-4 % more CPU a window; with these 0.8 %, and one worker did 0.95-1.0 of export_scene's windows/s in one
-#: process against 0.90-0.95 (issue 27.1; ycb_5obj_5s, E-POSE). Given to the nannies as their ``config`` too: a worker
-#: a nanny restarts after a kill came back with Dask's defaults when they were only set while the cluster started.
-#: Workers started by hand: the README's environment.
+#: process against 0.90-0.95 (issue 27.1; ycb_5obj_5s, E-POSE). Given to the nannies as their ``config``: a worker a
+#: nanny restarts after a kill came back with Dask's defaults when they were only set (``dask.config.set``) while the
+#: cluster started. Workers started by hand: the README's environment.
 WORKER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
                  "distributed.admin.system-monitor.interval": "5s"}
 #: Seconds allowed to resolve the scheduler's host name.
@@ -316,12 +316,12 @@ def open_client(spec: ClusterSpec, *, log=None):
 
         n = spec.local_workers()
         dashboard = _has_dashboard()
-        with _workers_ignore_sigint(), dask.config.set({**WORKER_ENVIRON, **WORKER_CONFIG}):
+        with _workers_ignore_sigint(), dask.config.set(WORKER_ENVIRON):
             # scheduler, workers and dashboard on the loopback interface only: a local run talks to nothing else
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                    dashboard_address="127.0.0.1:0",
                                    memory_limit=spec.memory_limit, silence_logs=logging.CRITICAL,
-                                   config=dict(WORKER_CONFIG))   # also for a worker its nanny restarts later
+                                   config=dict(WORKER_CONFIG))   # the workers' settings, kept by their nannies
         client = Client(cluster)
     try:
         if log is not None:

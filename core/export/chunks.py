@@ -59,8 +59,8 @@ class ChunkPlanner:
         self.cpu_measured_s = 0.0
         self.bytes_per_window = 0.0          # the largest result per window seen
         self.sizes: list[int] = []
-        #: workers the rest of this scene is spread over at its end (0: none; a callable is asked at each chunk)
-        self.tail_workers = 0
+        #: asked at each chunk: the workers the rest of this scene is spread over at its end (0: none)
+        self.tail_workers = lambda: 0
         self._prior = False
         if prior is not None:
             self.record_prior(prior)
@@ -107,7 +107,7 @@ class ChunkPlanner:
         if cost <= 0.0:
             return cap
         n = int(min(cap, max(1, round(self.target_s / cost))))
-        workers = self.tail_workers() if callable(self.tail_workers) else self.tail_workers
+        workers = self.tail_workers()
         if workers:                   # the run's last work: split what is left over the workers
             share = -(-self.remaining // (2 * int(workers)))
             n = min(n, max(share, int(round(MIN_TASK_CPU_S / cost)), 1))

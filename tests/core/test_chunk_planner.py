@@ -107,7 +107,7 @@ def test_the_last_work_is_split_over_the_workers_not_above_half_a_second():
         assert out == list(range(1000))
         return p.sizes
 
-    assert cut(0) == [400, 400, 200]
+    assert cut(lambda: 0) == [400, 400, 200]
     sizes = cut(lambda: 2)
     assert sizes[0] == 250 and sizes[1] == 188 and max(sizes) <= TARGET_TASK_CPU_S / 0.01
     assert all(s >= MIN_TASK_CPU_S / 0.01 for s in sizes[:-1]) and sum(sizes) == 1000
