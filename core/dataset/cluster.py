@@ -33,8 +33,9 @@ MAX_LOCAL_WORKERS = 256
 #: Dask sets MALLOC_TRIM_THRESHOLD_=65536 in every worker to hand freed memory back early; for the export's
 #: per-window image buffers that meant ~13x the page faults and 1.24x slower BOP windows on a quiet machine
 #: (bench_dataset --malloc-compare, one worker: 2522 vs 191 faults per window, 22.3 vs 27.7 windows/s),
-#: so local workers keep glibc's default. Workers started by hand: set
-#: DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON__MALLOC_TRIM_THRESHOLD_=None in their environment.
+#: so local workers keep glibc's default. Workers started by hand: ``source resources/evpose-workers.env`` (it gives
+#: the whole mapping: Dask lower-cases keys read from variable names, so ``..._ENVIRON__MALLOC_TRIM_THRESHOLD_=None``
+#: would not replace the upper-case default).
 WORKER_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 #: A Dask worker's own periodic work, made rare in local clusters: the statistical profiler (a stack sample of every
 #: thread each 10 ms, for the dashboard's profile page), the event loop's 20 ms tick (it only watches for a blocked

@@ -515,6 +515,29 @@ def test_local_workers_run_without_the_profiler_and_with_a_slow_tick(dask_client
         assert all(g["tick_ms"] == 1000 and g["monitor_ms"] in (None, 5000) for g in got), got
 
 
+def test_the_workers_env_file_sets_what_local_workers_get():
+    """resources/evpose-workers.env (the README's file for workers started by hand or on SLURM) gives, read as Dask
+    reads its environment on top of its defaults, exactly the settings evpose's local clusters give their workers.
+    (A DASK_..._PRE_SPAWN_ENVIRON__MALLOC_TRIM_THRESHOLD_=None variable, as the README once said, is read as a
+    lower-case key and leaves Dask's MALLOC_TRIM_THRESHOLD_=65536 in place.)"""
+    import copy
+
+    import dask
+
+    from evpose.core.dataset.cluster import WORKER_CONFIG, WORKER_ENVIRON
+
+    env = {}
+    for line in (Path(__file__).parents[2] / "resources" / "evpose-workers.env").read_text().splitlines():
+        if line.startswith("export "):
+            key, value = line[len("export "):].split("=", 1)
+            env[key] = value[1:-1] if value[:1] == value[-1:] == "'" else value
+    config = copy.deepcopy(dask.config.config)
+    dask.config.update(config, dask.config.collect_env(env))
+    for key, value in {**WORKER_ENVIRON, **WORKER_CONFIG}.items():
+        assert dask.config.get(key, config=config) == value, key
+    assert len(env) == len(WORKER_CONFIG) + 1
+
+
 def test_the_local_cluster_listens_on_the_loopback_interface_only():
     """A local run's scheduler, workers and dashboard bind 127.0.0.1 (before, the dashboard bound every interface)."""
     from evpose.core.dataset.cluster import ClusterSpec, open_client
