@@ -186,7 +186,9 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self._pending_refresh: set[str] = set()
         self._by_dir = {str(ref.path): ref for ref in dataset.scenes}
         self._seen = {ref.name: _signature(ref.path / "corrections.json") for ref in dataset.scenes}
-        self._rows = _RowSignal(self)
+        # parentless and captured by each reading job: a job still running when this window is deleted emits on
+        # a live object (a child would be deleted with the window, and emitting on it from the job's thread crashed)
+        self._rows = _RowSignal()
         self._rows.row.connect(self._row_ready)
         self.setWindowTitle(f"evpose dataset — {dataset.name} ({len(dataset)} scenes)")
 
@@ -272,7 +274,7 @@ class DatasetWindow(QtWidgets.QMainWindow):
             if names is None:
                 self.table.set_values(ref.name, {"status": "loading…"})
         defaults = self.dataset.defaults or None
-        emit = self._rows.row.emit
+        rows = self._rows                   # keeps the signal's object alive while the job runs
 
         def work(progress, cancel):
             for k, ref in enumerate(refs):
@@ -282,7 +284,7 @@ class DatasetWindow(QtWidgets.QMainWindow):
                     values = scene_row(str(ref.path), defaults)
                 except (InputError, OSError) as exc:
                     values = {"status": failure_text(exc), "failed": True}
-                emit(ref.name, values, serial)
+                rows.row.emit(ref.name, values, serial)
                 progress((k + 1) / len(refs), ref.name)
             return len(refs)
 

@@ -16,11 +16,13 @@ def window(qtbot, tmp_path, monkeypatch):
     qs = QtCore.QSettings(str(tmp_path / "settings.ini"), QtCore.QSettings.IniFormat)
     w = MainWindow(Settings(qs))
     w.modal_dialogs = False
-    qtbot.addWidget(w)
+
+    def before_close(w):                # pytest-qt closes and deletes it before fixtures' teardown code runs
+        w.auto_answer["Unsaved corrections"] = 0x00800000  # Discard
+
+    qtbot.addWidget(w, before_close_func=before_close)
     w.show()
-    yield w
-    w.auto_answer["Unsaved corrections"] = 0x00800000  # Discard
-    w.close()
+    return w
 
 
 @pytest.fixture(scope="session")

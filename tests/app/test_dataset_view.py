@@ -35,12 +35,14 @@ def dwin(qtbot, window, dataset_dir):
 
     win = open_dataset(window, dataset_dir)
     assert win is not None and window.dataset_window is win
-    qtbot.addWidget(win)
+
+    def before_close(w):                # pytest-qt closes and deletes it before fixtures' teardown code runs
+        w.cancel_batch()
+        qtbot.waitUntil(lambda: not w.jobs, timeout=60_000)
+
+    qtbot.addWidget(win, before_close_func=before_close)
     qtbot.waitUntil(win.rows_loaded, timeout=60_000)
-    yield win
-    win.cancel_batch()
-    qtbot.waitUntil(lambda: not win.jobs, timeout=60_000)
-    win.close()
+    return win
 
 
 def _scene(dataset_dir, name):
@@ -326,3 +328,37 @@ def test_ctrl_q_in_the_dataset_view_quits(qtbot, dwin, window):
     assert dwin.quit_action.shortcut() == QtGui.QKeySequence(QtGui.QKeySequence.Quit)
     dwin.quit_action.trigger()
     assert not window.isVisible() and not dwin.isVisible()
+
+
+def test_a_window_deleted_while_its_rows_are_read_does_not_crash_the_app(qtbot, window, dataset_dir, monkeypatch):
+    """A CI run segfaulted in a row-reading job: the job emitted each row on an object the deleted window owned.
+    The window is deleted (as Qt does on close with WA_DeleteOnClose, or pytest-qt at teardown) while its job is
+    still reading; the job then emits its rows and ends without crashing (before the fix its emit on the deleted
+    object raised in the job's thread, or crashed the process)."""
+    import threading
+
+    import shiboken6
+
+    from evpose.app import dataset_window as dw
+
+    gate, entered = threading.Event(), threading.Event()
+    real_row = dw.scene_row
+
+    def slow_row(path, defaults):
+        entered.set()
+        assert gate.wait(30)
+        return real_row(path, defaults)
+
+    monkeypatch.setattr(dw, "scene_row", slow_row)
+    win = dw.DatasetWindow(window, dw.Dataset.open(dataset_dir))
+    job = win.load_rows()
+    ended = []
+    signals = job.signals
+    signals.finished.connect(lambda n: ended.append(n))
+    assert entered.wait(30)
+    win.jobs.clear()
+    shiboken6.delete(win)                       # the C++ window and its children are gone
+    del win
+    gate.set()
+    qtbot.waitUntil(lambda: bool(ended), timeout=30_000)
+    assert ended == [len(PRIORS_US)]
