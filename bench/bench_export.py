@@ -53,6 +53,8 @@ from synth_scenes import DATA, SCENE, ensure_scene, ensure_ycb_scene, file_creat
 
 REPO = Path(__file__).resolve().parents[1]
 BASELINE = "8c676cd"
+#: The --formats name of BOP written as BOP-webdataset shards.
+SHARDED = "bop-shards"
 SCENES = {"ycb": "ycb_5obj_5s (5 real YCB meshes, 5 s)", "synth3": "synth_3obj_2s (3 coarse shapes, 2 s)"}
 PYTHON = sys.executable
 
@@ -67,6 +69,10 @@ def child(args: dict) -> dict:
 
     fmt, out = args["fmt"], Path(args["out"])
     opts = {"three_channel": True} if fmt == "h5" else None
+    if fmt == SHARDED:                       # BOP-webdataset shards (issue 27.4; only the current code has them)
+        from evpose.core.export.bop_shards import DEFAULT_SHARD_WINDOWS
+
+        fmt, opts = "bop", {"shard_windows": DEFAULT_SHARD_WINDOWS}
 
     def export(folder, span_us):
         scene = Scene.open(args["scene"])
@@ -93,7 +99,9 @@ def child(args: dict) -> dict:
     s = export(out / "timed", 600_000 if args["quick"] else None)
     wall, cpu_s = time.perf_counter() - t, cpu() - c0
     n = s.written + s.unlabeled * (fmt == "h5")
+    files = sum(len(fs) for _, _, fs in os.walk(out / "timed"))
     return {"evpose": str(Path(evpose.__file__).resolve().parent), "n": n, "wall_s": wall, "cpu_s": cpu_s,
+            "files_per_window": files / max(n, 1),
             "rate": n / wall, "cpu_rate": n / max(cpu_s, 1e-9), "load": [load0, os.getloadavg()[0]],
             "stages_ms": {k: v / max(n, 1) * 1e3 for k, v in s.timings_s.items()}}
 
@@ -137,11 +145,12 @@ def summarise(runs: list[dict]) -> dict:
             "rate_max": max(rates), "cpu_rate_median": statistics.median(r["cpu_rate"] for r in runs),
             "load": [round(v, 2) for r in runs for v in r["load"]],
             "stages_ms": {k: statistics.median(r["stages_ms"][k] for r in runs) for k in runs[0]["stages_ms"]},
+            "files_per_window": runs[0].get("files_per_window"),
             "runs": len(runs)}
 
 
 def print_table(results: dict, baseline_desc: str | None, file=None) -> None:
-    hdr = (f"{'scene':<8}{'format':<7}{'code':<9}{'windows':>8}{'win/s':>8}{'range':>13}{'w/cpu-s':>9}"
+    hdr = (f"{'scene':<8}{'format':<11}{'code':<9}{'windows':>8}{'win/s':>8}{'range':>13}{'w/cpu-s':>9}"
            f"{'ratio':>7}{'events':>8}{'annot':>8}{'images':>8}{'mat':>7}{'write':>7}  load")
     print(hdr, file=file)
     print("-" * len(hdr), file=file)
@@ -153,21 +162,29 @@ def print_table(results: dict, baseline_desc: str | None, file=None) -> None:
                     continue
                 ratio = (f"{codes['ratio']:>7.2f}" if code == "current" and "ratio" in codes else f"{'':>7}")
                 p = r["stages_ms"]
-                print(f"{scene:<8}{fmt:<7}{code:<9}{r['n']:>8}{r['rate_median']:>8.1f}"
+                print(f"{scene:<8}{fmt:<11}{code:<9}{r['n']:>8}{r['rate_median']:>8.1f}"
                       f"{r['rate_min']:>6.1f}-{r['rate_max']:<6.1f}{r['cpu_rate_median']:>9.1f}{ratio}"
                       f"{p['events']:>8.2f}{p['annotate']:>8.2f}{p['images']:>8.2f}{p['mat']:>7.2f}{p['write']:>7.2f}"
                       f"  {'/'.join(f'{v:.1f}' for v in r['load'])}", file=file)
+    for scene, per_fmt in results.items():
+        print(f"{scene}: files in the export folder per window: "
+              + ", ".join(f"{fmt} {c['current']['files_per_window']:.2f}" for fmt, c in per_fmt.items()
+                          if c["current"].get("files_per_window") is not None), file=file)
     print(f"baseline = {baseline_desc}" if baseline_desc else "no baseline measured", file=file)
+    from evpose.core.export.bop_shards import DEFAULT_SHARD_WINDOWS
+
+    print(f"{SHARDED}: BOP with --bop-shards {DEFAULT_SHARD_WINDOWS}; its ratio is against plain BOP of the current "
+          "code in this run", file=file)
     print("win/s = median over the repeats (range: min-max); w/cpu-s = windows per CPU-second of the export's\n"
-          "process(es); ratio = current / baseline (medians); per-window stage columns in ms (medians);\n"
-          "load = 1-minute load average at the start/end of each timed export", file=file)
+          "process(es); ratio = current / baseline (medians; bop-shards: / bop); per-window stage columns in ms\n"
+          "(medians); load = 1-minute load average at the start/end of each timed export", file=file)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="first 0.6 s of each scene only")
     ap.add_argument("--repeat", type=int, default=1, help="timed exports per scene, format and code")
-    ap.add_argument("--formats", default="epose,bop,h5")
+    ap.add_argument("--formats", default="epose,bop,h5", help=f"comma list of: epose, bop, h5, {SHARDED}")
     ap.add_argument("--scenes", default="ycb,synth3", help="comma list of: " + ", ".join(SCENES))
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--durable", default="batch", choices=("batch", "file", "none"))
@@ -211,12 +228,14 @@ def main(argv=None) -> int:
                 for scene in scenes:
                     for fmt in formats:
                         for code, path in order:
+                            if fmt == SHARDED and code == "baseline":
+                                continue             # the baseline has no shards: compared with BOP in this run
                             k += 1
                             r = run_child(path, scene=str(scene_dirs[scene]), fmt=fmt, jobs=args.jobs,
                                           durable=args.durable, quick=args.quick, out=str(work / f"run{k}"))
                             raw.setdefault(scene, {}).setdefault(fmt, {}).setdefault(code, []).append(r)
                             print(f"  {scene} {fmt} {code}: {r['n']} windows, {r['rate']:.1f} windows/s, "
-                                  f"{r['cpu_rate']:.1f} per CPU-s, load {r['load'][0]:.1f}/{r['load'][1]:.1f} "
+                                  f"{r['cpu_rate']:.1f} per CPU-s, {r['files_per_window']:.2f} files/window, load {r['load'][0]:.1f}/{r['load'][1]:.1f} "
                                   f"({r['evpose']})", file=log)
                             subprocess.run(["rm", "-rf", str(work / f"run{k}")], check=False)
         finally:
@@ -229,6 +248,10 @@ def main(argv=None) -> int:
                 entry["ratio"] = entry["current"]["rate_median"] / entry["baseline"]["rate_median"]
                 entry["cpu_ratio"] = entry["current"]["cpu_rate_median"] / entry["baseline"]["cpu_rate_median"]
             results.setdefault(scene, {})[fmt] = entry
+        if SHARDED in results.get(scene, {}) and "bop" in results[scene]:
+            sh, bop = results[scene][SHARDED], results[scene]["bop"]["current"]
+            sh["ratio"] = sh["current"]["rate_median"] / bop["rate_median"]        # against BOP, same code and run
+            sh["cpu_ratio"] = sh["current"]["cpu_rate_median"] / bop["cpu_rate_median"]
     if args.json:
         doc = {"benchmark": "export", "unit": "windows/s", "jobs": args.jobs, "durable": args.durable,
                "quick": args.quick, "repeat": args.repeat, "cores": os.cpu_count(),

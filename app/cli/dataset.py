@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from evpose.app.cli.errors import EXIT_PARTIAL, CliError, command
-from evpose.app.cli.export import SKIP_HELP, format_options_from_args, objects_from_args, window_us_from_args
+from evpose.app.cli.export import SKIP_HELP, add_bop_shards_arg, format_options_from_args, objects_from_args, window_us_from_args
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.options import scheduler_option
 from evpose.app.cli.progress import Progress
@@ -347,6 +347,7 @@ def add_dataset_parser(subparsers) -> None:
     p.add_argument("--split", metavar="NAME", default=None,
                    help="bop: split folder of the scenes, test (default), train or val (see evpose export)")
     p.add_argument("--skip", metavar="A,B", default=None, help=SKIP_HELP)
+    add_bop_shards_arg(p)
     p.set_defaults(jobs=1)
     _cluster_args(p)
     p.set_defaults(func=cmd_export)

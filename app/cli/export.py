@@ -50,6 +50,7 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
                    help="bop: the split folder the scene goes into: test (default), train or val (optionally "
                         "with a _TYPE suffix)")
     p.add_argument("--skip", metavar="A,B", default=None, help=SKIP_HELP)
+    add_bop_shards_arg(p)
     p.add_argument("--force", action="store_true",
                    help="replace an earlier evpose export of a different configuration in --out")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
@@ -107,14 +108,33 @@ SKIP_HELP = ("epose: per-window products not to write, comma-separated: event_im
              "segmented")
 
 
+def add_bop_shards_arg(p) -> None:
+    """``--bop-shards [N]`` (``export`` and ``dataset export``)."""
+    from evpose.core.export.bop_shards import DEFAULT_SHARD_WINDOWS
+
+    p.add_argument("--bop-shards", type=int, nargs="?", const=DEFAULT_SHARD_WINDOWS, default=None, metavar="N",
+                   help=f"bop: images and masks in BOP-webdataset shards of N windows (default "
+                        f"{DEFAULT_SHARD_WINDOWS}): SPLIT_web/shard-*.tar + key_to_shard.json, masks as RLE; one "
+                        f"file per N windows instead of 1 + 2 per object per window")
+
+
 def format_options_from_args(args) -> dict | None:
-    """``--split`` as the BOP writer's option, ``--skip`` as the E-POSE writer's (each refused for the other
-    formats)."""
+    """``--split`` and ``--bop-shards`` as the BOP writer's options, ``--skip`` as the E-POSE writer's (each refused
+    for the other formats)."""
     opts = {}
     if getattr(args, "split", None) is not None:
         if args.format != "bop":
             raise CliError(f"--split: only for --format bop, not {args.format}")
         opts["split"] = args.split
+    if getattr(args, "bop_shards", None) is not None:
+        if args.format != "bop":
+            raise CliError(f"--bop-shards: only for --format bop, not {args.format}")
+        from evpose.core.export.bop_shards import MAX_SHARD_WINDOWS
+
+        if not 1 <= args.bop_shards <= MAX_SHARD_WINDOWS:
+            raise CliError(f"--bop-shards: must be a number of windows from 1 to {MAX_SHARD_WINDOWS}, "
+                           f"got {args.bop_shards}")
+        opts["shard_windows"] = args.bop_shards
     if getattr(args, "skip", None) is not None:
         if args.format != "epose":
             raise CliError(f"--skip: only for --format epose, not {args.format}")

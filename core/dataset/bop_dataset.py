@@ -12,6 +12,8 @@ break this before any scene is exported (from the manifests; the assembly checks
 ``test_targets_bop19.json`` and ``test_targets_bop24.json`` are the scenes' targets with ``scene_id`` set
 to ``k``. ``camera.json`` is the first scene's (BOP's per-image ``cam_K`` in ``scene_camera.json`` is what
 counts). ``scene_names.json`` maps scene id to scene name and lists the missing scenes and the files.
+Scenes exported with shards (``--bop-shards``) bring ``SPLIT_web/shard-*.tar``: linked as ``OUT/bop/SPLIT_web/``
+numbered on scene after scene, with one merged ``key_to_shard.json`` (the keys carry the dataset's scene ids).
 
 All or nothing
 --------------
@@ -51,6 +53,7 @@ from evpose.core.data.temp_files import is_stale
 from evpose.core.errors import InputError
 from evpose.core.export.bop import dump_list
 from evpose.core.export.bop_conventions import TARGETS_BOP19, TARGETS_BOP24
+from evpose.core.export.bop_shards import KEY_TO_SHARD, json_member, shard_name, web_dir_name
 from evpose.core.export.out_folder import EXPORT_ROLE, lock_folder
 
 __all__ = ["BopAssemblyError", "assemble_bop", "check_models", "read_names", "scene_split", "BOP_DIR", "BOP_ROLE",
@@ -122,6 +125,7 @@ def _build(stage: Path, out_dir: Path, names: list[str], done: list[str]) -> Non
     model_from: dict[str, str] = {}
     targets: dict[str, list] = {TARGETS_BOP19: [], TARGETS_BOP24: []}
     split = None
+    shards = _Shards()
     for k, name in enumerate(names):
         if name not in done:
             continue
@@ -136,8 +140,10 @@ def _build(stage: Path, out_dir: Path, names: list[str], done: list[str]) -> Non
                 rel = f"{split}/{k:06d}/{p.relative_to(src / split / SCENE_SUBDIR)}"
                 _link(p, stage / rel)
                 files.append(rel)
+        shards.add(src, split, k, stage, files)
         for fname, lst in targets.items():
             lst += [{**e, "scene_id": k} for e in _read_targets(src / fname)]
+    shards.finish(stage, split, files)
     _write_models_info(out_dir, stage, model_from)
     _link(out_dir / next(n for n in names if n in done) / "camera.json", stage / "camera.json")
     files += ["camera.json", "models/models_info.json"]
@@ -168,6 +174,53 @@ def _swap(stage: Path, bop: Path, out_dir: Path, names: list[str]) -> None:
         raise
     if inv is not None:
         remove_owned(inv, keep_root=False)
+
+
+class _Shards:
+    """The scenes' BOP-webdataset shards (``--bop-shards``) as one set: scene ``k``'s shards are linked as
+    ``SPLIT_web/shard-GGGGGG.tar`` numbered on from the earlier scenes' (no gaps), ``key_to_shard.json`` merged. The
+    image keys already carry the dataset's scene id (the dataset export gives each scene's writer its id)."""
+
+    def __init__(self):
+        self.keys: dict[str, int] = {}
+        self.next = 0
+        self.sharded: list[bool] = []
+
+    def add(self, src: Path, split: str, k: int, stage: Path, files: list) -> None:
+        web = web_dir_name(split)
+        path = src / web / KEY_TO_SHARD
+        self.sharded.append(path.is_file())
+        if len(set(self.sharded)) > 1:
+            raise BopAssemblyError(f"{src}: {'has' if self.sharded[-1] else 'has no'} {web}/{KEY_TO_SHARD}, unlike "
+                                   "the other scenes' exports (export them all with the same --bop-shards)")
+        if not self.sharded[-1]:
+            return
+        try:
+            keys = json.loads(path.read_text())
+            if not isinstance(keys, dict) or not all(isinstance(v, int) for v in keys.values()):
+                raise ValueError("expected an object of image key -> shard number")
+        except (OSError, ValueError) as exc:
+            raise BopAssemblyError(f"{path}: not a key_to_shard.json evpose wrote: {exc}") from None
+        prefix = f"{k:06d}_"
+        wrong = next((key for key in keys if not key.startswith(prefix)), None)
+        if wrong is not None:
+            raise BopAssemblyError(f"{path}: image key {wrong!r} does not carry the dataset's scene id {k} (exported "
+                                   f"alone, or before the dataset's scenes were reordered): export it again with "
+                                   f"evpose dataset export --force")
+        renumber = {}
+        for n in sorted(set(keys.values())):
+            renumber[n] = self.next
+            rel = f"{web}/{shard_name(self.next)}"
+            _link(src / web / shard_name(n), stage / rel)
+            files.append(rel)
+            self.next += 1
+        self.keys.update({key: renumber[n] for key, n in keys.items()})
+
+    def finish(self, stage: Path, split: str, files: list) -> None:
+        if self.sharded and self.sharded[0]:
+            rel = f"{web_dir_name(split)}/{KEY_TO_SHARD}"
+            write_atomic(stage / rel, json_member(dict(sorted(self.keys.items()))).encode())
+            files.append(rel)
 
 
 # ------------------------------------------------------------------------------------------- what was there

@@ -82,7 +82,8 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
             scene = dataset.open_scene(ref)
             try:
                 s = export_scene(scene, fmt, out_dir / ref.name, progress=scene_progress, executor=executor,
-                                 cancel=lambda: stop.is_set() or (cancel is not None and cancel()), **options)
+                                 cancel=lambda: stop.is_set() or (cancel is not None and cancel()),
+                                 **_scene_options(options, fmt, dataset.scenes.index(ref)))
             finally:
                 scene.close()
             result.scenes[ref.name] = s.to_json(with_files=False)
@@ -120,6 +121,15 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
             result.failed["bop"] = failure_text(exc)
     result.runtime_s = time.perf_counter() - t0
     return result.ordered([ref.name for ref in dataset.scenes] + ["bop"])
+
+
+def _scene_options(options: dict, fmt: str, k: int) -> dict:
+    """Scene ``k``'s export options: BOP shards' image keys carry the scene's id in the dataset (``k``, as its
+    folder ``OUT/bop/SPLIT/{k:06d}``), so the assembly links the shards as they are."""
+    fo = options.get("format_options") or {}
+    if fmt != "bop" or not fo.get("shard_windows"):
+        return options
+    return {**options, "format_options": {**fo, "key_scene_id": k}}
 
 
 def check_dataset_export(dataset, out_dir, fmt: str, objects=None) -> Path:

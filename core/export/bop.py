@@ -35,6 +35,11 @@ the undistorted camera (exact, no resampling).
 :func:`evpose.core.label.event_frames.display.polarity_rgb` (``count / s`` clipped to 1, ``s`` = 99th percentile of the window's
 non-zero counts); G is 0. No depth images.
 
+With ``shard_windows`` S > 0 (``--bop-shards``) the images and masks go into BOP-webdataset shards instead of
+``rgb/``, ``mask/``, ``mask_visib/``: ``OUT/SPLIT_web/shard-NNNNNN.tar`` of windows ``[N*S, (N+1)*S)`` and
+``key_to_shard.json`` (:mod:`evpose.core.export.bop_shards`); the scene-wise JSON files are written as above. A chunk
+of work holds whole shards (:meth:`BopWriter.chunk_group`); its worker writes them at the chunk's end.
+
 ``obj_id``: the scene's ``class_id`` when the exported objects' class ids are distinct and >= 1,
 otherwise the 1-based position among the exported objects (recorded in export_manifest.json).
 """
@@ -62,6 +67,16 @@ from evpose.core.export.bop_conventions import (
 from evpose.core.export.bop_gt_info import EnlargedCanvas, gt_info
 from evpose.core.export.bop_models import models_info_entry, ply_bytes, vertex_normals
 from evpose.core.export.bop_readme import SIDECAR_NAME, readme_text, scene_sidecar
+from evpose.core.export.bop_shards import (
+    KEY_TO_SHARD,
+    check_shard_windows,
+    image_key,
+    json_member,
+    mask_rle,
+    shard_name,
+    shard_tar,
+    web_dir_name,
+)
 from evpose.core.export.encode import encode_png, json_text
 from evpose.core.export.options import ExportError
 from evpose.core.export.writer import FormatWriter
@@ -155,7 +170,8 @@ class BopWriter(FormatWriter):
 
     fmt = "bop"
 
-    def __init__(self, K_new=None, scene_id: int = 0, png_compression: int = 1, split: str = DEFAULT_SPLIT):
+    def __init__(self, K_new=None, scene_id: int = 0, png_compression: int = 1, split: str = DEFAULT_SPLIT,
+                 shard_windows: int = 0, key_scene_id: int | None = None):
         if K_new is not None:
             K_new = np.asarray(K_new, np.float64)
             if K_new.shape != (3, 3):
@@ -167,10 +183,35 @@ class BopWriter(FormatWriter):
         self.scene_id = int(scene_id)
         self.png_compression = int(png_compression)
         self.split = check_split(split)
+        try:
+            self.shard_windows = check_shard_windows(shard_windows)
+        except ValueError as exc:
+            raise ExportError(str(exc)) from None
+        if key_scene_id is not None and (isinstance(key_scene_id, bool) or int(key_scene_id) != key_scene_id
+                                         or key_scene_id < 0):
+            raise ExportError(f"key_scene_id: must be an integer >= 0, got {key_scene_id!r}")
+        #: the scene id in the shards' image keys (a dataset export gives each scene its id in the dataset)
+        self.key_scene_id = self.scene_id if key_scene_id is None else int(key_scene_id)
 
     def options(self) -> dict:
-        return {"K_new": self.K_new, "scene_id": self.scene_id, "png_compression": self.png_compression,
+        opts = {"K_new": self.K_new, "scene_id": self.scene_id, "png_compression": self.png_compression,
                 "split": self.split}
+        if self.shard_windows:
+            opts.update(shard_windows=self.shard_windows, key_scene_id=self.key_scene_id)
+        return opts
+
+    # ------------------------------------------------------------------ shards (evpose.core.export.bop_shards)
+    def web_dir(self, out_dir):
+        return out_dir / web_dir_name(self.split)
+
+    def shard_of(self, index: int) -> int:
+        return int(index) // self.shard_windows
+
+    def chunk_group(self):
+        if not self.shard_windows:
+            return None
+        S = self.shard_windows
+        return lambda task: task.window.index // S
 
     def output_camera(self, scene):
         return scene.camera.undistorted(_K_of(scene, self.K_new))
@@ -186,13 +227,33 @@ class BopWriter(FormatWriter):
         return out_dir / self.split / f"{self.scene_id:06d}"
 
     def last_file(self, ctx, index):
+        if self.shard_windows:
+            return self.web_dir(ctx.out_dir) / shard_name(self.shard_of(index))
         return self.scene_dir(ctx.out_dir) / "rgb" / f"{index:06d}.png"
+
+    def completed(self, ctx) -> dict[int, dict]:
+        """Resume: with shards, a window is complete when its shard exists and every window of the shard that this
+        export writes is journaled (a shard is written whole; one written before a kill took its journal lines is
+        written again, whole)."""
+        done = super().completed(ctx)
+        if not self.shard_windows:
+            return done
+        expected: dict[int, set] = {}
+        for w, v in zip(ctx.extra.get("selected", []), ctx.extra.get("valid", [])):
+            if v:
+                expected.setdefault(self.shard_of(w.index), set()).add(w.index)
+        whole = {n for n, idx in expected.items() if idx <= done.keys()}
+        return {i: r for i, r in done.items() if self.shard_of(i) in whole}
 
     # ------------------------------------------------------------------ parent
     def begin(self, ctx) -> None:
         scene = ctx.scene
         sd = self.scene_dir(ctx.out_dir)
-        dirs = [ctx.out_dir / self.split, sd] + [sd / sub for sub in ("rgb", "mask", "mask_visib")]
+        dirs = [ctx.out_dir / self.split, sd]
+        if self.shard_windows:
+            dirs.append(self.web_dir(ctx.out_dir))
+        else:
+            dirs += [sd / sub for sub in ("rgb", "mask", "mask_visib")]
         dirs.append(ctx.out_dir / "models")
         ctx.owned.dirs([d for d in dirs if not d.is_dir()])       # logged before they exist (evpose.core.data.owned_files)
         for d in dirs:
@@ -235,14 +296,23 @@ class BopWriter(FormatWriter):
         files += [f"models/obj_{ids[n]:06d}.ply" for n in ctx.names]
         files += [f"{s}/{n}" for n in _SCENE_FILES + (SIDECAR_NAME,)]
         files.append("README.txt")
-        per = []
-        for i in sorted(written):
-            per.append(f"{s}/rgb/{i:06d}.png")
-            for g in range(len(ctx.names)):
-                per += [f"{s}/mask/{i:06d}_{g:06d}.png", f"{s}/mask_visib/{i:06d}_{g:06d}.png"]
+        if self.shard_windows:
+            web = web_dir_name(self.split)
+            keys = {image_key(self.key_scene_id, i): self.shard_of(i) for i in sorted(written)}
+            write_atomic(self.web_dir(ctx.out_dir) / KEY_TO_SHARD, json_member(keys).encode(), ctx.fsync,
+                         ctx.owned)
+            files.append(f"{web}/{KEY_TO_SHARD}")
+            per = [f"{web}/{shard_name(n)}" for n in sorted(set(keys.values()))]
+            patterns = [f"{web}/shard-{{shard:06d}}.tar"]
+        else:
+            per = []
+            for i in sorted(written):
+                per.append(f"{s}/rgb/{i:06d}.png")
+                for g in range(len(ctx.names)):
+                    per += [f"{s}/mask/{i:06d}_{g:06d}.png", f"{s}/mask_visib/{i:06d}_{g:06d}.png"]
+            patterns = [f"{s}/rgb/{{index:06d}}.png", f"{s}/mask/{{index:06d}}_{{gt:06d}}.png",
+                        f"{s}/mask_visib/{{index:06d}}_{{gt:06d}}.png"]
         ctx.extra["n_window_files"] = len(per)
-        patterns = [f"{s}/rgb/{{index:06d}}.png", f"{s}/mask/{{index:06d}}_{{gt:06d}}.png",
-                    f"{s}/mask_visib/{{index:06d}}_{{gt:06d}}.png"]
         return files + per, patterns
 
     # ------------------------------------------------------------------ worker
@@ -267,7 +337,7 @@ class BopWriter(FormatWriter):
         return {"und": undistorter_for(raw, K), "valid": valid, "K": bop_K(K).ravel().tolist(),
                 "obj_ids": [ids[n] for n in wctx.names], "offset_us": int(clock.offset_us),
                 "skew_ppm": float(clock.skew_ppm), "canvas": EnlargedCanvas(cam),
-                "models": [scene.raster_model(n) for n in wctx.names]}
+                "models": [scene.raster_model(n) for n in wctx.names], "shards": {}}
 
     def process(self, wctx, task, ev, labels):
         st = wctx.state
@@ -280,8 +350,10 @@ class BopWriter(FormatWriter):
         pos, neg = polarity_counts(evu, W, H)
         rgb = polarity_rgb_black(pos, neg)
         comp = self.png_compression
+        sharded = bool(self.shard_windows)
         blobs = []
         gt, info = [], []
+        rle_full, rle_vis = {}, {}
         empty = None
         for g, (k, oid) in enumerate(zip(wctx.sel, st["obj_ids"])):
             o = labels.objects[k]
@@ -290,17 +362,24 @@ class BopWriter(FormatWriter):
                        "obj_id": int(oid)})
             full, vis = o.mask_full, o.mask_visible
             if full is None or vis is None:
+                full = vis = None
+            info.append(gt_info(full, vis, st["valid"], st["canvas"].outside(st["models"][g], T)))
+            if sharded:                     # masks as RLE members of the shard (bop_imagewise.save_masks)
+                rle_full[str(g)] = mask_rle(full, (H, W))
+                rle_vis[str(g)] = rle_full[str(g)] if vis is full else mask_rle(vis, (H, W))
+                continue
+            if full is None:
                 if empty is None:
                     empty = encode_png(np.zeros((H, W), np.uint8), compression=comp)
                 b_full = b_vis = empty
-                full = vis = None
             else:
                 b_full = encode_png(full.view(np.uint8) * np.uint8(255), compression=comp)
                 b_vis = b_full if vis is full else encode_png(vis.view(np.uint8) * np.uint8(255), compression=comp)
-            info.append(gt_info(full, vis, st["valid"], st["canvas"].outside(st["models"][g], T)))
             blobs.append((sd / "mask" / f"{w.index:06d}_{g:06d}.png", b_full))
             blobs.append((sd / "mask_visib" / f"{w.index:06d}_{g:06d}.png", b_vis))
-        blobs.append((sd / "rgb" / f"{w.index:06d}.png", encode_png(rgb, compression=comp)))
+        rgb_png = encode_png(rgb, compression=comp)
+        if not sharded:
+            blobs.append((sd / "rgb" / f"{w.index:06d}.png", rgb_png))
         T_cb = inv_T(task.T_base_cam)
         rec = {"i": w.index, "status": "written", "gt": gt, "info": info,
                "cam": {"cam_K": st["K"], "depth_scale": 1.0, "cam_R_w2c": T_cb[:3, :3].ravel().tolist(),
@@ -309,13 +388,29 @@ class BopWriter(FormatWriter):
                          "n_events": int(len(ev)), "n_events_in_image": int(len(evu)),
                          "offset_us": st["offset_us"], "skew_ppm": st["skew_ppm"]}}
         t1 = time.perf_counter()
-        with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
-            for path, data in blobs:
-                batch.add(path, data)                         # rgb last: marks the window complete
+        if sharded:                          # written with its shard at the chunk's end (end_chunk)
+            members = {"rgb.png": rgb_png, "camera.json": json_member(rec["cam"]).encode(),
+                       "gt.json": json_member(gt).encode(), "gt_info.json": json_member(info).encode(),
+                       "mask.json": json_member(rle_full).encode(), "mask_visib.json": json_member(rle_vis).encode()}
+            st["shards"].setdefault(self.shard_of(w.index), {})[image_key(self.key_scene_id, w.index)] = members
+        else:
+            with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
+                for path, data in blobs:
+                    batch.add(path, data)                         # rgb last: marks the window complete
         t2 = time.perf_counter()
         wctx.timings["images"] += t1 - t0
         wctx.timings["write"] += t2 - t1
         return rec, {"json": tuple(json.dumps(rec[k]) for k in _TEXT_KEYS)}
+
+    def begin_chunk(self, wctx) -> None:
+        wctx.state["shards"] = {}
+
+    def end_chunk(self, wctx) -> None:
+        """Write each shard of the chunk whole, atomically (the chunk holds whole shards: chunk_group)."""
+        shards, wctx.state["shards"] = wctx.state.get("shards", {}), {}
+        web = self.web_dir(wctx.out_dir)
+        for n in sorted(shards):
+            write_atomic(web / shard_name(n), shard_tar(list(shards[n].items())), wctx.fsync_files, wctx.owned)
 
     def accept(self, ctx, record, payload, line=None) -> None:
         super().accept(ctx, record, payload, line)

@@ -4,6 +4,7 @@ what differs from BOP's own datasets, and what evpose needs to read the export b
 from __future__ import annotations
 
 from evpose.core.export.bop_conventions import VISIB_GT_MIN, bop_K
+from evpose.core.export.bop_shards import web_dir_name
 from evpose.core.export.fingerprint import evpose_version
 
 __all__ = ["readme_text", "scene_sidecar", "SIDECAR_NAME", "SIDECAR_FORMAT"]
@@ -79,4 +80,19 @@ See export_manifest.json for the exact configuration, clock, corrections and per
   skew_ppm = {clock.skew_ppm!r}, t_ref_us = {clock.t_ref_us} (the recording's first event).
 - Objects: {objs}. Models: binary PLY in mm with vertex normals; the model origin is the origin of the
   scene's mesh, NOT the centre of its 3D bounding box (models_info.json min_x/y/z say where the box is).
+""" + _shards_text(ctx, split)
+
+
+def _shards_text(ctx, split: str) -> str:
+    """The README's paragraph on BOP-webdataset shards (``--bop-shards``; empty without)."""
+    S = getattr(ctx.writer, "shard_windows", 0)
+    if not S:
+        return ""
+    web = web_dir_name(split)
+    return f"""- Shards (--bop-shards {S}): images and masks are NOT in rgb/, mask/, mask_visib/ but in {web}/shard-NNNNNN.tar
+  (BOP-webdataset, bop_toolkit_lib/dataset/bop_webdataset.py), shard N = windows [{S}N, {S}(N+1)), not shuffled;
+  {web}/key_to_shard.json maps each image KEY = SSSSSS_IIIIII (scene id {ctx.writer.key_scene_id}, image id)
+  to its shard. Members: KEY.rgb.png, KEY.camera.json, KEY.gt.json, KEY.gt_info.json, KEY.mask.json and
+  KEY.mask_visib.json ({{instance: uncompressed COCO RLE}} as bop_toolkit's pycoco_utils.binary_mask_to_rle,
+  column-major runs starting with zeros). The scene-wise JSON files in {split}/ are written too.
 """

@@ -18,14 +18,16 @@ the tail was ~10 % of its wall time, issue 27.1). While other scenes are in flig
 the chunks keep their size (at 64 workers, splitting every sequence's end would multiply the tasks by ~7).
 
 Windows are cut contiguously in order, so a chunk is a run of consecutive windows (read sequentially from the
-event file); the records are per window, so the output does not depend on the cut.
+event file); the records are per window, so the output does not depend on the cut. A writer that groups windows
+into one file (BOP shards, :mod:`evpose.core.export.bop_shards`) gives ``group(task)``: a chunk then ends only where
+the group changes (it is extended to the end of its last group), so every group is written whole by one worker.
 """
 from __future__ import annotations
 
 import threading
 
 __all__ = ["ChunkPlanner", "MAX_CHUNK_BYTES", "MAX_CHUNK_WINDOWS", "MIN_TASK_CPU_S", "PROBE_CHUNKS", "PROBE_WINDOWS",
-           "TARGET_TASK_CPU_S", "result_bytes"]
+           "TARGET_TASK_CPU_S", "result_bytes", "whole_groups"]
 
 #: CPU seconds a task aims at (issue 27: 2-10 s).
 TARGET_TASK_CPU_S = 4.0
@@ -47,8 +49,9 @@ class ChunkPlanner:
     (:meth:`record`). Thread-safe; ``sizes`` lists the sizes handed out, in order."""
 
     def __init__(self, tasks: list, *, target_s: float = TARGET_TASK_CPU_S, probe: int = PROBE_WINDOWS,
-                 max_windows: int = MAX_CHUNK_WINDOWS, max_bytes: int = MAX_CHUNK_BYTES, prior=None):
+                 max_windows: int = MAX_CHUNK_WINDOWS, max_bytes: int = MAX_CHUNK_BYTES, prior=None, group=None):
         self._tasks = tasks
+        self._group = group
         self._next = 0
         self._lock = threading.Lock()
         self.target_s = float(target_s)
@@ -119,6 +122,7 @@ class ChunkPlanner:
             if self._next >= len(self._tasks):
                 return None
             n = min(self.size(), len(self._tasks) - self._next)
+            n = whole_groups(self._tasks, self._next, n, self._group)
             chunk = self._tasks[self._next:self._next + n]
             self._next += n
             self.sizes.append(n)
@@ -134,6 +138,19 @@ class ChunkPlanner:
                 self.windows_measured += int(n_windows)
                 self.cpu_measured_s += float(cpu_s)
                 self.bytes_per_window = max(self.bytes_per_window, n_bytes / n_windows)
+
+
+def whole_groups(tasks: list, start: int, n: int, group) -> int:
+    """``n`` extended so that ``tasks[start:start + n]`` ends where ``group(task)`` changes (or at the end); ``n``
+    itself when ``group`` is None."""
+    if group is None:
+        return n
+    end = start + n
+    if end < len(tasks):
+        last = group(tasks[end - 1])
+        while end < len(tasks) and group(tasks[end]) == last:
+            end += 1
+    return end - start
 
 
 def result_bytes(results: list) -> int:

@@ -18,7 +18,7 @@ import signal
 import time
 
 from evpose.core.data.events import Cancelled
-from evpose.core.export.chunks import ChunkPlanner
+from evpose.core.export.chunks import ChunkPlanner, whole_groups
 from evpose.core.export.journal import journal_line
 from evpose.core.export.worker import WorkerContext, WorkerSpec
 
@@ -53,11 +53,17 @@ class WindowExecutor:
         raise NotImplementedError
 
 
-def chunk_tasks(tasks: list, workers: int) -> list[list]:
+def chunk_tasks(tasks: list, workers: int, group=None) -> list[list]:
     """Contiguous chunks of about ``len(tasks) / (8 workers)`` tasks (1..32): small enough to balance
-    the load and to lose little to a killed worker, large enough to keep the per-chunk cost low."""
+    the load and to lose little to a killed worker, large enough to keep the per-chunk cost low; each extended to
+    the end of its last ``group`` (:func:`~evpose.core.export.chunks.whole_groups`)."""
     size = max(1, min(32, math.ceil(len(tasks) / (max(workers, 1) * 8))))
-    return [tasks[i:i + size] for i in range(0, len(tasks), size)]
+    chunks, i = [], 0
+    while i < len(tasks):
+        n = whole_groups(tasks, i, min(size, len(tasks) - i), group)
+        chunks.append(tasks[i:i + n])
+        i += n
+    return chunks
 
 
 def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, report, cancel, jobs: int,
@@ -68,7 +74,7 @@ def run_windows(ctx, spec: WorkerSpec, tasks: list, records: dict, summary, repo
     :class:`~evpose.core.data.events.Cancelled`. An ``executor`` takes the place of ``jobs``."""
     if executor is not None and tasks:
         ctx.extra["chunks_durable"] = bool(executor.syncs_chunks)
-        planner = ChunkPlanner(tasks)        # chunks sized in CPU seconds as their costs come back
+        planner = ChunkPlanner(tasks, group=ctx.writer.chunk_group())   # chunks sized in CPU s as costs come back
         _run_chunks(ctx, records, summary, report, cancel, executor.run(spec, planner, f"{ctx.out_dir}|{ctx.sha}"))
         summary.chunks = list(planner.sizes)
     elif jobs == 1 or len(tasks) <= 1:
@@ -88,8 +94,13 @@ def _run_serial(ctx, spec, tasks, records, summary, report, cancel) -> None:
     if not tasks:
         return
     wctx = WorkerContext(spec, scene=ctx.scene, owned=ctx.owned)
+    group = ctx.writer.chunk_group()
     for k, task in enumerate(tasks):
+        if group is not None and (k == 0 or group(tasks[k - 1]) != group(task)):
+            wctx.writer.begin_chunk(wctx)
         rec, payload = wctx.run(task)
+        if group is not None and (k + 1 == len(tasks) or group(tasks[k + 1]) != group(task)):
+            wctx.end_chunk()            # the group's file, before its windows are journaled
         _accept(ctx, task.window.index, rec, payload, records, summary)
         _maybe_flush(ctx)
         report(k + 1)
@@ -107,7 +118,7 @@ def _run_pool(ctx, spec, tasks, records, summary, report, cancel, jobs) -> None:
     ok = False
     try:
         _run_chunks(ctx, records, summary, report, cancel,
-                    pool.imap_unordered(_worker_run, chunk_tasks(tasks, jobs)), t_pool)
+                    pool.imap_unordered(_worker_run, chunk_tasks(tasks, jobs, ctx.writer.chunk_group())), t_pool)
         ok = True
     finally:
         if ok:
@@ -181,9 +192,11 @@ def run_worker_chunk(wctx: WorkerContext, tasks: list) -> tuple[list, dict]:
     that the driver's work per window is an append (issue 27.2)."""
     c0 = time.thread_time()
     out = []
+    wctx.writer.begin_chunk(wctx)
     for t in tasks:
         rec, payload = wctx.run(t)
         out.append((rec, payload, journal_line(rec)))
+    wctx.end_chunk()
     timings = wctx.take_timings()
     timings["worker_cpu"] = time.thread_time() - c0
     return out, timings

@@ -84,6 +84,12 @@ class WorkerContext:
         self.timings["annotate"] += t2 - t1
         return self.writer.process(self, task, ev, labels)
 
+    def end_chunk(self) -> None:
+        """The chunk's windows are done: the writer writes what it grouped (BOP shards), timed as "write"."""
+        t = time.perf_counter()
+        self.writer.end_chunk(self)
+        self.timings["write"] += time.perf_counter() - t
+
     def take_timings(self) -> dict:
         t = self.timings
         self.timings = dict.fromkeys(STAGES, 0.0)

@@ -121,9 +121,20 @@ class FormatWriter:
     def readme(self, ctx: "ExportContext") -> str:
         return ""
 
+    def chunk_group(self):
+        """None, or ``group(task)``: windows of one group go to one worker in one chunk, whose end calls
+        :meth:`end_chunk` (a file holding many windows, e.g. a BOP shard)."""
+        return None
+
     # -- worker
     def setup_worker(self, wctx: "WorkerContext") -> dict:
         return {}
+
+    def begin_chunk(self, wctx: "WorkerContext") -> None:
+        """A chunk starts: forget what a failed earlier chunk of this worker left half grouped."""
+
+    def end_chunk(self, wctx: "WorkerContext") -> None:
+        """A chunk's windows were processed (whole groups of :meth:`chunk_group`): write what spans them."""
 
     def process(self, wctx: "WorkerContext", task: WindowTask, events: EventArray, labels) -> tuple[dict, object]:
         """Write/compute one window; return ``(record, payload)`` for :meth:`accept`."""

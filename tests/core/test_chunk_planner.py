@@ -112,3 +112,23 @@ def test_the_last_work_is_split_over_the_workers_not_above_half_a_second():
     assert sizes[0] == 250 and sizes[1] == 188 and max(sizes) <= TARGET_TASK_CPU_S / 0.01
     assert all(s >= MIN_TASK_CPU_S / 0.01 for s in sizes[:-1]) and sum(sizes) == 1000
     assert sizes[-2] == 50 and sizes[-1] <= 50 and len(sizes) <= 11
+
+
+def test_chunks_hold_whole_groups():
+    """A writer that writes a group of windows as one file (BOP shards of 8) gets chunks that end where a group
+    ends, whatever size the planner aims at; the pool's fixed chunks too; no task twice or lost."""
+    from evpose.core.export.pool import chunk_tasks
+
+    tasks = [i for i in range(300) if i % 7]             # gaps: windows left out
+    group = lambda i: i // 8                             # noqa: E731
+    for prior in (None, (0.4, 0), (0.001, 0)):           # probes of 4, chunks of ~10, chunks of 512
+        p = ChunkPlanner(tasks, prior=prior, group=group)
+        chunks = []
+        while (c := p.next()) is not None:
+            chunks.append(c)
+            p.record(len(c), 0.4 * len(c))
+        assert [t for c in chunks for t in c] == tasks
+        assert all(group(a[-1]) != group(b[0]) for a, b in zip(chunks, chunks[1:]))
+    fixed = chunk_tasks(tasks, 4, group)
+    assert [t for c in fixed for t in c] == tasks and len(fixed) > 4
+    assert all(group(a[-1]) != group(b[0]) for a, b in zip(fixed, fixed[1:]))

@@ -135,6 +135,28 @@ def test_bop_dataset_export_equals_the_single_scene_exports(dask_client, tiny_da
         assert describe_file_differences(got, want) == [], name
 
 
+def test_bop_shards_through_the_cluster(dask_client, tiny_dataset, tmp_path):
+    """``--bop-shards`` on the cluster (issue 27.4): chunks hold whole shards, so each scene's folder holds the bytes
+    of its single-scene export (with the dataset's scene id in the keys), and OUT/bop/test_web numbers every scene's
+    shards on, with one key_to_shard.json."""
+    from evpose.core.dataset.export import export_dataset
+    from evpose.core.export import export_scene
+
+    fo = {"shard_windows": 8}
+    res = export_dataset(dask_client, Dataset.open(tiny_dataset), "bop", tmp_path / "out", format_options=fo)
+    assert res.failed == {}
+    n_keys = 0
+    for k, ref in enumerate(Dataset.open(tiny_dataset).scenes):
+        export_scene(ref.path, "bop", tmp_path / "single" / ref.name, format_options={**fo, "key_scene_id": k})
+        got, want = tree(tmp_path / "out" / ref.name), tree(tmp_path / "single" / ref.name)
+        assert any(k.endswith(".tar") for k in want) and got.keys() == want.keys(), ref.name
+        assert describe_file_differences(got, want) == [], ref.name
+        assert sum(res.scenes[ref.name]["chunks"]) == res.scenes[ref.name]["written"]
+        n_keys += res.scenes[ref.name]["written"]
+    keys = json.loads((tmp_path / "out" / "bop" / "test_web" / "key_to_shard.json").read_text())
+    assert len(keys) == n_keys and {key[:6] for key in keys} == {"000000", "000001", "000002"}
+
+
 def test_bop_export_is_one_dataset(dask_client, tiny_dataset, tmp_path):
     from evpose.core.dataset.export import export_dataset
 
