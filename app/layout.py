@@ -121,6 +121,19 @@ def compact(window: QtWidgets.QWidget) -> bool:
     return window.height() < COMPACT_BELOW_H
 
 
+#: A saved dock layout is restored when the window is within this share of the size it was saved at.
+LAYOUT_SIZE_TOLERANCE = 0.08
+
+
+def layout_fits(window, width: int, height: int) -> bool:
+    """Whether a dock layout saved at ``width`` x ``height`` suits ``window`` now: about the same size and the same
+    column arrangement (:func:`compact`). A layout saved on a taller screen stacks the review marks under the
+    space-time view; restored on a laptop it left the space-time canvas 33-86 px high."""
+    w, h = window.width(), window.height()
+    close = abs(w - width) <= LAYOUT_SIZE_TOLERANCE * width and abs(h - height) <= LAYOUT_SIZE_TOLERANCE * height
+    return close and (height < COMPACT_BELOW_H) == compact(window)
+
+
 def default_dock_sizes(window, spacetime, review, corrections, timeline) -> None:
     """Share the window between the frame view and the docks in proportion to its size: the side columns
     take 28 and 30 % (never below what their controls need), the timeline 22 % of the height (140-280 px)."""

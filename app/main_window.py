@@ -258,10 +258,7 @@ class MainWindow(QtWidgets.QMainWindow):
                        "dock_spacetime")
         # review marks under the space-time view (a tab beside it on a laptop screen, L.compact): the right column
         # keeps its height for corrections
-        if L.compact(self):
-            self.tabifyDockWidget(self._docks[2], self._docks[1])
-        else:
-            self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
+        self._arrange_left_column(L.compact(self))
         self._add_dock("Timeline", self.timeline, QtCore.Qt.BottomDockWidgetArea, "dock_timeline")
         L.bare_title(self._docks[3])    # no close button beside "Fit" (View ▸ Panels shows and hides it)
         self.feeds.spacetime_dock = self._docks[2]
@@ -274,7 +271,7 @@ class MainWindow(QtWidgets.QMainWindow):
         # the timeline spans the full width under the side docks
         self.setCorner(QtCore.Qt.BottomLeftCorner, QtCore.Qt.BottomDockWidgetArea)
         self.setCorner(QtCore.Qt.BottomRightCorner, QtCore.Qt.BottomDockWidgetArea)
-        if not self.settings.restore_state(self, L.LAYOUT_VERSION):
+        if not self.settings.restore_state(self, L.LAYOUT_VERSION, fits=lambda w, h: L.layout_fits(self, w, h)):
             self._default_dock_sizes()
             QtCore.QTimer.singleShot(0, self._default_dock_sizes)   # again once laid out
         self.undo_bridge = UndoBridge(session.history, self.actions_by_name["undo"], self.actions_by_name["redo"], self)
@@ -292,6 +289,28 @@ class MainWindow(QtWidgets.QMainWindow):
         self.request_frame()
         self.request_spacetime()
         self.request_kymograph()
+
+    def _arrange_left_column(self, compact: bool) -> None:
+        """Review marks as a tab beside the space-time view (``compact``: a laptop screen) or under it."""
+        self._compact_column = compact
+        if compact:
+            self.tabifyDockWidget(self._docks[2], self._docks[1])
+        else:
+            self.splitDockWidget(self._docks[2], self._docks[1], QtCore.Qt.Vertical)
+
+    def resizeEvent(self, event: QtGui.QResizeEvent) -> None:
+        """A window resized across :data:`~evpose.app.layout.COMPACT_BELOW_H` rearranges its left column (the review
+        marks stacked under the space-time view of a tall window left the canvas 33-86 px high once the window was
+        made laptop-sized) and shares the window out again."""
+        super().resizeEvent(event)
+        d = self._docks
+        if len(d) < 4 or getattr(self, "_compact_column", None) in (None, L.compact(self)):
+            return
+        if any(x.isFloating() or x.isHidden() for x in (d[1], d[2])):
+            self._compact_column = L.compact(self)      # the user arranged them: left as they are
+            return
+        self._arrange_left_column(L.compact(self))
+        QtCore.QTimer.singleShot(0, self._default_dock_sizes)
 
     def _default_dock_sizes(self) -> None:
         if len(self._docks) < 4:

@@ -32,16 +32,27 @@ class Settings:
         """Save the window's geometry and dock layout (``version``: of the layout, see :meth:`restore_state`)."""
         self.qs.setValue("window/geometry", window.saveGeometry())
         self.qs.setValue("window/state", window.saveState(version))
+        self.qs.setValue("window/state_size", [window.width(), window.height()])    # the size the layout is for
 
     def restore_geometry(self, window) -> bool:
         """Restore the saved window geometry (the caller clamps it to the screen); True if there was one."""
         geo = self.qs.value("window/geometry")
         return bool(geo is not None and window.restoreGeometry(geo))
 
-    def restore_state(self, window, version: int = 0) -> bool:
-        """Restore the saved dock layout if it was saved with the same ``version``; True if it was applied."""
+    def restore_state(self, window, version: int = 0, fits=None) -> bool:
+        """Restore the saved dock layout if it was saved with the same ``version`` and, given ``fits(width, height)``,
+        at a window size it accepts (a layout made for another size can collapse a view); True if it was applied."""
         state = self.qs.value("window/state")
-        return bool(state is not None and window.restoreState(state, version))
+        if state is None:
+            return False
+        if fits is not None:
+            try:
+                w, h = (int(v) for v in self.qs.value("window/state_size"))
+            except (TypeError, ValueError):
+                return False                # saved before the size was: made for an unknown size
+            if not fits(w, h):
+                return False
+        return bool(window.restoreState(state, version))
 
     def export_options(self) -> dict:
         """The export dialog's last format and options (empty: defaults)."""

@@ -108,13 +108,16 @@ SKIP_HELP = ("epose: per-window products not to write, comma-separated: event_im
              "segmented")
 
 
+#: ``--bop-shards``'s N when not given: evpose.core.export.bop_shards.DEFAULT_SHARD_WINDOWS (a test checks), written
+#: out here because building the parser imports no engine module.
+BOP_SHARDS_DEFAULT = 200
+
+
 def add_bop_shards_arg(p) -> None:
     """``--bop-shards [N]`` (``export`` and ``dataset export``)."""
-    from evpose.core.export.bop_shards import DEFAULT_SHARD_WINDOWS
-
-    p.add_argument("--bop-shards", type=int, nargs="?", const=DEFAULT_SHARD_WINDOWS, default=None, metavar="N",
+    p.add_argument("--bop-shards", type=int, nargs="?", const=BOP_SHARDS_DEFAULT, default=None, metavar="N",
                    help=f"bop: images and masks in BOP-webdataset shards of N windows (default "
-                        f"{DEFAULT_SHARD_WINDOWS}): SPLIT_web/shard-*.tar + key_to_shard.json, masks as RLE; one "
+                        f"{BOP_SHARDS_DEFAULT}): SPLIT_web/shard-*.tar + key_to_shard.json, masks as RLE; one "
                         f"file per N windows instead of 1 + 2 per object per window")
 
 

@@ -194,3 +194,41 @@ def test_the_timeline_plot_keeps_a_useful_height(qtbot, window, scene_copy):
     dock = window._docks[3]
     assert not dock.features() & QtWidgets.QDockWidget.DockWidgetClosable
     assert dock.toggleViewAction() in window.docks_menu.actions()
+
+
+@pytest.mark.parametrize("saved, now", [((1366, 698), (1500, 950)), ((1500, 950), (1366, 698)),
+                                        ((1920, 1050), (1280, 650))])
+def test_a_layout_made_at_another_size_leaves_every_part_useful(qtbot, window, scene_copy, saved, now):
+    """A scene open at one window size, then the window resized (another screen, a laptop's window made smaller):
+    every part stays useful live and when the next scene restores the layout; a layout saved at another size is
+    not restored there. The space-time canvas once came back 33-86 px high in ``./run demo``."""
+    resize_to(qtbot, window, *saved)
+    window.controller.open_scene(scene_copy)
+    settle(qtbot, 300)
+    window.settings.save_window(window, LAYOUT_VERSION)
+    resize_to(qtbot, window, *now)
+    settle(qtbot, 300)
+    assert layout_problems(window) == []
+    assert window.spacetime.canvas.native.height() >= 250, window.spacetime.canvas.native.height()
+    window.controller.open_scene(scene_copy)
+    settle(qtbot, 300)
+    assert layout_problems(window) == []
+    assert window.spacetime.canvas.native.height() >= 250, window.spacetime.canvas.native.height()
+    assert window.frame_view.height() >= 300
+
+
+def test_a_layout_saved_at_another_size_is_not_restored(qtbot, window, tmp_path):
+    from evpose.app.layout import layout_fits
+
+    resize_to(qtbot, window, 1366, 698)
+    assert layout_fits(window, 1366, 698) and layout_fits(window, 1400, 720)
+    assert not layout_fits(window, 1500, 950)       # other size and the other column arrangement
+    assert not layout_fits(window, 1366, 900)
+    calls = []
+    window.restoreState = lambda state, version: calls.append(version) or True
+    window.settings.qs.setValue("window/state", QtCore.QByteArray(b"x"))
+    window.settings.qs.setValue("window/state_size", [1500, 950])
+    assert not window.settings.restore_state(window, LAYOUT_VERSION, fits=lambda w, h: layout_fits(window, w, h))
+    window.settings.qs.setValue("window/state_size", [1366, 698])
+    assert window.settings.restore_state(window, LAYOUT_VERSION, fits=lambda w, h: layout_fits(window, w, h))
+    assert calls == [LAYOUT_VERSION]

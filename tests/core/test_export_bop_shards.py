@@ -159,6 +159,10 @@ def test_bop_shards_option_is_checked(tiny_scene_dir, tmp_path):
 
 def test_cli_bop_shards(tiny_scene_dir, tmp_path, capsys):
     from evpose.app.cli import main
+    from evpose.app.cli.export import BOP_SHARDS_DEFAULT
+    from evpose.core.export.bop_shards import DEFAULT_SHARD_WINDOWS
+
+    assert BOP_SHARDS_DEFAULT == DEFAULT_SHARD_WINDOWS
 
     assert main(["export", str(tiny_scene_dir), "--format", "bop", "--out", str(tmp_path / "b"), "--bop-shards",
                  "-q"]) == 0
