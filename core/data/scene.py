@@ -178,6 +178,10 @@ class Scene:
         return self._models[name]
 
     # ------------------------------------------------------------------ scale sanity
+    def object_box(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box ``(lo, hi)`` of object ``name`` in its frame, metres (no mesh loaded: cached bounds)."""
+        return self._object_box(self.object_names.index(name))
+
     def _object_box(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box ``(lo, hi)`` of object ``i`` in its frame, metres, from the mesh file's cached bounds."""
         spec = self.manifest.objects[i]
