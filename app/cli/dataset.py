@@ -16,7 +16,15 @@ import sys
 from pathlib import Path
 
 from evpose.app.cli.errors import EXIT_PARTIAL, CliError, command
-from evpose.app.cli.export import SKIP_HELP, add_bop_shards_arg, format_options_from_args, objects_from_args, window_us_from_args
+from evpose.app.cli.export import (
+    SKIP_HELP,
+    add_bop_shards_arg,
+    add_label_sigma_args,
+    format_options_from_args,
+    label_sigma_from_args,
+    objects_from_args,
+    window_us_from_args,
+)
 from evpose.app.cli.json_output import emit
 from evpose.app.cli.options import scheduler_option
 from evpose.app.cli.progress import Progress
@@ -213,6 +221,7 @@ def cmd_export(args) -> int:
 
     window_us = window_us_from_args(args)
     objects = objects_from_args(args)
+    label_sigma = label_sigma_from_args(args)
     ds = _open_dataset(args)
     check_dataset_export(ds, args.out, args.format, objects)          # before the cluster starts
     with _cluster(args) as client, Progress(f"dataset export {args.format}", not args.quiet) as progress:
@@ -220,7 +229,7 @@ def cmd_export(args) -> int:
                                 window_events=args.window_events, label_at=args.label_at,
                                 only_verified=args.only_verified, include_stale=args.include_stale, objects=objects,
                                 margin_m=args.margin_mm * 1e-3, force=args.force,
-                                format_options=format_options_from_args(args))
+                                format_options=format_options_from_args(args), label_sigma=label_sigma)
     text = _table(result, [
         ("written", lambda d: str(d["written"])), ("complete", lambda d: str(d["skipped_complete"])),
         ("unlabeled", lambda d: str(d["unlabeled"])), ("windows", lambda d: str(d["windows_total"]))])
@@ -348,6 +357,7 @@ def add_dataset_parser(subparsers) -> None:
                    help="bop: split folder of the scenes, test (default), train or val (see evpose export)")
     p.add_argument("--skip", metavar="A,B", default=None, help=SKIP_HELP)
     add_bop_shards_arg(p)
+    add_label_sigma_args(p)
     p.set_defaults(jobs=1)
     _cluster_args(p)
     p.set_defaults(func=cmd_export)

@@ -51,6 +51,7 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
                         "with a _TYPE suffix)")
     p.add_argument("--skip", metavar="A,B", default=None, help=SKIP_HELP)
     add_bop_shards_arg(p)
+    add_label_sigma_args(p)
     p.add_argument("--force", action="store_true",
                    help="replace an earlier evpose export of a different configuration in --out")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document on stdout")
@@ -65,6 +66,8 @@ def summary_text(s) -> str:
              f"(skipped), {s.unlabeled} unlabeled, {s.filtered_unverified} not verified (left out) of "
              f"{s.windows_total} windows in {s.runtime_s:.1f} s ({rate:.1f} windows/s, "
              f"{s.jobs} job{'s' * (s.jobs > 1)})"]
+    if s.filtered_label_sigma:
+        lines.append(f"  {s.filtered_label_sigma} windows left out: a label's sigma above --max-label-sigma-mm/-deg")
     if s.events_only:
         lines.append("  events only (no trajectory, no objects): event frames without labels")
     if s.review_marked:
@@ -121,6 +124,45 @@ def add_bop_shards_arg(p) -> None:
                         f"file per N windows instead of 1 + 2 per object per window")
 
 
+def add_label_sigma_args(p) -> None:
+    """``--label-sigma`` and its limits (``export`` and ``dataset export``)."""
+    p.add_argument("--label-sigma", metavar="K=V,...", default=None,
+                   help="write each label's 1-sigma (t mm, rotation deg, contour px) propagated from these input "
+                        "sigmas: offset_us, skew_ppm, pose_mm, pose_deg, hand_eye_mm, hand_eye_deg (RMS of 3D "
+                        "errors; unnamed inputs 0; the trajectory's interpolation error always added), e.g. "
+                        "offset_us=2000,pose_mm=2,pose_deg=1")
+    p.add_argument("--max-label-sigma-mm", type=float, default=None, metavar="X",
+                   help="with --label-sigma: leave out (and count) windows where a label's sigma_t exceeds X mm")
+    p.add_argument("--max-label-sigma-deg", type=float, default=None, metavar="Y",
+                   help="with --label-sigma: leave out (and count) windows where a label's sigma_R exceeds Y deg")
+
+
+def label_sigma_from_args(args):
+    """``--label-sigma`` and ``--max-label-sigma-*`` as an export's LabelSigmaOptions (None: not asked for)."""
+    text = getattr(args, "label_sigma", None)
+    limits = (getattr(args, "max_label_sigma_mm", None), getattr(args, "max_label_sigma_deg", None))
+    if text is None:
+        if any(v is not None for v in limits):
+            raise CliError("--max-label-sigma-mm/-deg: need --label-sigma (the inputs' sigma the labels' comes from)")
+        return None
+    from evpose.core.label.uncertainty import InputSigmas, LabelSigmaOptions
+
+    fields = {}
+    for item in (s.strip() for s in text.split(",") if s.strip()):
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in InputSigmas.__dataclass_fields__ or key.strip() == "interpolation":
+            raise CliError(f"--label-sigma: {item!r}: expected KEY=VALUE with KEY one of offset_us, skew_ppm, "
+                           "pose_mm, pose_deg, hand_eye_mm, hand_eye_deg")
+        try:
+            fields[key.strip()] = float(value)
+        except ValueError:
+            raise CliError(f"--label-sigma: {item!r}: {value!r} is not a number") from None
+    try:
+        return LabelSigmaOptions(InputSigmas(**fields), *limits)
+    except ValueError as exc:
+        raise CliError(f"--label-sigma: {exc}") from None
+
+
 def format_options_from_args(args) -> dict | None:
     """``--split`` and ``--bop-shards`` as the BOP writer's options, ``--skip`` as the E-POSE writer's (each refused
     for the other formats)."""
@@ -169,13 +211,15 @@ def cmd_export(args) -> int:
     window_us = window_us_from_args(args)
     objects = objects_from_args(args)
     format_options = format_options_from_args(args)
+    label_sigma = label_sigma_from_args(args)
     check_export_out(args.out, args.scene)
     try:
         with Progress(f"export {args.format}", not args.quiet) as progress:
             s = export_scene(args.scene, args.format, args.out, window_us=window_us, window_events=args.window_events,
                              label_at=args.label_at, only_verified=args.only_verified, objects=objects,
                              include_stale=args.include_stale, format_options=format_options,
-                             margin_m=args.margin_mm * 1e-3, jobs=args.jobs, force=args.force, progress=progress)
+                             margin_m=args.margin_mm * 1e-3, jobs=args.jobs, force=args.force, progress=progress,
+                             label_sigma=label_sigma)
     except InputError as exc:
         if objects is not None and str(exc).startswith("objects:"):
             raise CliError(f"--{exc}") from None        # the scene's objects were chosen by --objects

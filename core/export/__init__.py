@@ -52,7 +52,7 @@ def make_writer(fmt: str, format_options: dict | None = None):
 def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = DEFAULT_WINDOW_US, window_events: int | None = None,
                  label_at: str = "center", only_verified: bool = False, objects=None, margin_m: float = 0.0,
                  jobs: int = 1, force: bool = False, progress=None, cancel=None, format_options: dict | None = None,
-                 durable=True, include_stale: bool = False, executor=None) -> ExportSummary:
+                 durable=True, include_stale: bool = False, executor=None, label_sigma=None) -> ExportSummary:
     """Export a scene's corrected labels.
 
     Parameters
@@ -93,6 +93,10 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = DEFAULT_W
     executor : evpose.core.export.pool.WindowExecutor, optional
         Runs the chunks of windows elsewhere instead of ``jobs`` local processes (a Dask cluster:
         :class:`evpose.core.dataset.dask_windows.DaskWindows`); the files are the same.
+    label_sigma : evpose.core.label.uncertainty.LabelSigmaOptions, optional
+        Write each label's 1-sigma (:mod:`evpose.core.label.uncertainty`, from the inputs' sigma it holds) in every
+        format, and leave out the windows above its ``max_mm`` / ``max_deg`` (counted as ``filtered_label_sigma``).
+        None (default): no uncertainty is written.
     format_options : dict, optional
         Writer options: epose ``png_compression``; bop ``K_new`` (3x3, default K), ``scene_id``,
         ``png_compression``; h5 ``three_channel`` (bool), ``compression`` ("blosc-lz4" | "gzip" | None).
@@ -120,10 +124,10 @@ def export_scene(scene_or_path, fmt: str, out_dir, *, window_us: int = DEFAULT_W
             return run_export(scene, writer, out_dir, window_us=window_us, window_events=window_events,
                               label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
                               jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel,
-                              include_stale=include_stale, executor=executor)
+                              include_stale=include_stale, executor=executor, label_sigma=label_sigma)
         finally:
             scene.close()
     return run_export(scene_or_path, writer, out_dir, window_us=window_us, window_events=window_events,
                       label_at=label_at, only_verified=only_verified, objects=objects, margin_m=margin_m,
                       jobs=jobs, force=force, durable=durable, progress=progress, cancel=cancel,
-                      include_stale=include_stale, executor=executor)
+                      include_stale=include_stale, executor=executor, label_sigma=label_sigma)

@@ -14,6 +14,8 @@ Output (``SPLIT``: ``test`` unless chosen, see :func:`~evpose.core.export.bop_co
     OUT/SPLIT/SSSSSS/scene_gt.json       obj_id, cam_R_m2c (row-major), cam_t_m2c (mm)
     OUT/SPLIT/SSSSSS/scene_gt_info.json  as BOP's calc_gt_info (:mod:`~evpose.core.export.bop_gt_info`)
     OUT/SPLIT/SSSSSS/scene_times.json    t_start_us, t_end_us, t_label_us (event clock), n_events, offset_us, skew_ppm
+    OUT/SPLIT/SSSSSS/scene_gt_uncertainty.json  with --label-sigma: obj_id, sigma_t_mm, sigma_R_deg, sigma_px per
+                                                instance (evpose.core.label.uncertainty)
     OUT/SPLIT/SSSSSS/evpose_scene.json   the OpenCV K, raw camera, object names, windows, clock (evpose's sidecar)
 
 ``SSSSSS`` is the scene id (default 0), ``IIIIII`` the zero-based window index of the tiling (so ids
@@ -152,6 +154,27 @@ _MODEL_FILES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _MODEL_FILES_LOCK = threading.Lock()
 
 
+#: Beside scene_gt.json with --label-sigma: per image, per instance (scene_gt's order) the label's 1-sigma.
+UNCERTAINTY_FILE = "scene_gt_uncertainty.json"
+
+
+def uncertainty_entries(written: dict, sigma: dict) -> dict:
+    """``{image id: [{"obj_id", "sigma_t_mm", "sigma_R_deg", "sigma_px"}, ...]}`` of the written images, instances
+    in ``scene_gt``'s order."""
+    out = {}
+    for i, rec in written.items():
+        s = sigma[i]
+        out[i] = [{"obj_id": g["obj_id"], "sigma_R_deg": _finite(s[k, 1]), "sigma_px": _finite(s[k, 2]),
+                   "sigma_t_mm": _finite(s[k, 0])} for k, g in enumerate(rec["gt"])]
+    return out
+
+
+def _finite(v) -> float | None:
+    """A float for JSON (null where not finite: a box wholly behind the camera has no contour sigma)."""
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
 def _model_files(model, name: str) -> tuple[bytes, dict]:
     """``(PLY bytes, models_info entry)`` of ``name``'s model (cached while the model lives)."""
     with _MODEL_FILES_LOCK:
@@ -286,6 +309,10 @@ class BopWriter(FormatWriter):
             known = {i: t[j] for i, t in texts.items()}
             write_atomic(sd / name, _dump_keyed({i: r[key] for i, r in written.items()}, known).encode(), ctx.fsync,
                          ctx.owned)
+        sigma = ctx.extra.get("label_sigma")
+        if sigma is not None:              # --label-sigma: evpose.core.label.uncertainty
+            write_atomic(sd / UNCERTAINTY_FILE, _dump_keyed(uncertainty_entries(written, sigma)).encode(), ctx.fsync,
+                         ctx.owned)
         t19 = targets_bop19(self.scene_id, {i: (r["gt"], r["info"]) for i, r in written.items()})
         write_atomic(ctx.out_dir / TARGETS_BOP19, dump_list(t19).encode(), ctx.fsync, ctx.owned)
         write_atomic(ctx.out_dir / TARGETS_BOP24, dump_list(targets_bop24(self.scene_id, written)).encode(),
@@ -295,6 +322,8 @@ class BopWriter(FormatWriter):
         files = ["camera.json", "models/models_info.json", TARGETS_BOP19, TARGETS_BOP24]
         files += [f"models/obj_{ids[n]:06d}.ply" for n in ctx.names]
         files += [f"{s}/{n}" for n in _SCENE_FILES + (SIDECAR_NAME,)]
+        if sigma is not None:
+            files.append(f"{s}/{UNCERTAINTY_FILE}")
         files.append("README.txt")
         if self.shard_windows:
             web = web_dir_name(self.split)

@@ -37,7 +37,8 @@ events), 346x260 for a DAVIS346:
     ``clock_offset_us`` (int64) / ``clock_skew_ppm``, ``distCoeffs``, ``image_size`` [H W],
     ``object_names`` (cell), ``box_center`` kx5 ``[u v X Y Z]`` of the box centre, ``bbox_obj`` /
     ``bbox_visib`` kx4 ``[x y w h]`` tight boxes of the amodal / visible masks (-1 when empty),
-    ``px_count_all`` / ``px_count_visib`` / ``visib_fract`` 1xk.
+    ``px_count_all`` / ``px_count_visib`` / ``visib_fract`` 1xk; with ``--label-sigma``: ``sigma_t_mm``,
+    ``sigma_R_deg``, ``sigma_px`` 1xk, each label's 1-sigma (:mod:`evpose.core.label.uncertainty`).
 
 Beside the windows: ``<object>_box.txt`` (object-frame box corners p1..p8 as 3 rows of 8, metres,
 the original's ``*_box.txt``), ``three_channel_image_paths.txt`` (names relative to the folder),
@@ -326,6 +327,10 @@ def _mat_fields(wctx, task, ev, objs, keypoints) -> dict:
     evm[:, 3] -= 1.0
     T_bc = task.T_base_cam
     clock = st["clock"]
+    sigma = {}
+    if task.sigma is not None:         # --label-sigma: each label's 1-sigma (evpose.core.label.uncertainty)
+        sig = np.asarray(task.sigma, np.float64)
+        sigma = {"sigma_t_mm": sig[None, :, 0], "sigma_R_deg": sig[None, :, 1], "sigma_px": sig[None, :, 2]}
     return {
         "pose": np.concatenate([o.T_cam_obj for o in objs], axis=1),
         "keypointprojections": kp,
@@ -351,4 +356,5 @@ def _mat_fields(wctx, task, ev, objs, keypoints) -> dict:
         "px_count_all": np.array([[o.px_count_all for o in objs]], np.float64),
         "px_count_visib": np.array([[o.px_count_visib for o in objs]], np.float64),
         "visib_fract": np.array([[o.visib_fract for o in objs]], np.float64),
+        **sigma,
     }

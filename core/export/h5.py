@@ -15,6 +15,8 @@ Layout (N = selected windows, in tiling order; K = exported objects; H x W = sen
     center_uv          (N, K, 2) float64      distorted pixel of the box centre
     visib_fract        (N, K) float64         visible / amodal pixels (0 when not in view)
     px_count_all       (N, K) int64, px_count_visib (N, K) int64
+    label_sigma        (N, K, 3) float64      with --label-sigma: each label's 1-sigma [t mm, rotation deg, contour px]
+                                              (evpose.core.label.uncertainty; NaN when not valid)
     label_map          (N, H, W) int16        exported object index 0..K-1 of the visible surface, -1 background
                                               (pixels of scene objects that are not exported are -1 too)
     frames/counts      (N, 2, H, W) uint16    [0] ON (p=1), [1] OFF (p=0) event counts, saturated at 65535
@@ -338,6 +340,8 @@ class H5Writer(FormatWriter):
             p["px_count_all"] = np.array([o.px_count_all for o in objs], np.int64)
             p["px_count_visib"] = np.array([o.px_count_visib for o in objs], np.int64)
             p["label_map"] = wctx.state["lut"][labels.label_map.astype(np.intp) + 1]
+            if task.sigma is not None:
+                p["label_sigma"] = np.asarray(task.sigma, np.float64)
         else:
             p["T_cam_obj"] = np.full((K, 4, 4), np.nan)
             p["T_base_cam"] = np.full((4, 4), np.nan)

@@ -94,6 +94,8 @@ def _create_label_datasets(f, ds, scene, ctx, shape) -> None:
     ds("px_count_all", (N, K), "i8", 0)
     ds("px_count_visib", (N, K), "i8", 0)
     ds("label_map", (N, H, W), "i2", -1, chunk=(1, H, W), comp=True)
+    if ctx.extra.get("label_sigma_options") is not None:          # evpose.core.label.uncertainty
+        ds("label_sigma", (N, K, 3), "f8", np.nan)
     corners = np.stack([scene.model(n).bbox_corners(ctx.margin_m) for n in ctx.names]) if K else np.zeros((0, 8, 3))
     f.create_dataset("objects/corners_obj", data=corners, track_times=False)
 

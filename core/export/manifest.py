@@ -33,6 +33,7 @@ def _windows_table(ctx, records, selected, valid) -> dict:
         v = v or events_only
         status[w.index] = "written" if (w.index in records and v) else ("unlabeled" if not v else "missing")
     win = {"index": [], "t0_us": [], "t1_us": [], "t_label_us": [], "i0": [], "i1": [], "status": []}
+    sigma_out = ctx.extra.get("label_sigma_left_out", set())
     for w in ctx.windows:
         win["index"].append(w.index)
         win["t0_us"].append(w.t0_us)
@@ -40,7 +41,8 @@ def _windows_table(ctx, records, selected, valid) -> dict:
         win["t_label_us"].append(w.t_label_us)
         win["i0"].append(w.i0)
         win["i1"].append(w.i1)
-        win["status"].append(status.get(w.index, "filtered_unverified"))
+        win["status"].append(status.get(w.index, "filtered_label_sigma" if w.index in sigma_out
+                                        else "filtered_unverified"))
     return win
 
 
@@ -97,7 +99,8 @@ def write_manifest(ctx, summary, records, selected, valid, unlabeled) -> None:
         "occluders_not_exported": [n for n in scene.object_names if n not in ctx.names],
         "counts": {"windows_total": summary.windows_total, "selected": summary.selected,
                    "labeled": int(valid.sum()), "unlabeled": summary.unlabeled,
-                   "filtered_unverified": summary.filtered_unverified},
+                   "filtered_unverified": summary.filtered_unverified,
+                   "filtered_label_sigma": summary.filtered_label_sigma},
         "unlabeled": unlabeled,
         "unlabeled_reasons": summary.unlabeled_reasons,
         "windows": _windows_table(ctx, records, selected, valid),

@@ -49,6 +49,7 @@ from evpose.core.export.windows import build_windows, review_usage, scene_stalen
 from evpose.core.export.worker import STAGES, WorkerSpec
 from evpose.core.export.writer import ExportContext, FormatWriter, WindowTask
 from evpose.core.label.labels import label_poses
+from evpose.core.label.uncertainty import label_sigmas
 from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["run_export"]
@@ -57,7 +58,7 @@ __all__ = ["run_export"]
 def run_export(scene, writer: FormatWriter, out_dir, *, window_us=DEFAULT_WINDOW_US, window_events=None, label_at="center",
                only_verified=False, objects=None, margin_m=0.0, jobs=1, force=False, durable=True,
                include_stale=False, progress: Callable[[float, str], None] | None = None,
-               cancel: Callable[[], bool] | None = None, executor=None) -> ExportSummary:
+               cancel: Callable[[], bool] | None = None, executor=None, label_sigma=None) -> ExportSummary:
     """Run one export (see :func:`evpose.core.export.export_scene` for the parameters)."""
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
@@ -82,8 +83,11 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=DEFAULT_WINDOW
         doc = export_fingerprint(scene, names, fmt=writer.fmt, format_options=writer.options(), window_us=window_us,
                                  window_events=window_events, label_at=label_at, only_verified=only_verified,
                                  margin_m=float(margin_m), include_stale=include_stale)
+        if label_sigma is not None:
+            doc["label_sigma"] = label_sigma.to_json()
         ctx = _open_folder(scene, writer, out_dir, windows, names, sel, doc, force=force, durable=durable,
                            margin_m=float(margin_m), label_at=label_at)
+        ctx.extra["label_sigma_options"] = label_sigma
         selection = _select(ctx, only_verified, include_stale)
         summary = _new_summary(ctx, selection, jobs, only_verified, include_stale)
         try:
@@ -117,6 +121,7 @@ class _Selection:
     valid: np.ndarray            # (N,) bool: the window has a label
     touched: np.ndarray          # (windows of the tiling,) bool: a verified mark overlaps it (only_verified)
     review_reasons: list         # why each touched window is not selected (only_verified)
+    sigma: np.ndarray | None = None      # (N, K exported, 3): sigma_t_mm, sigma_R_deg, sigma_px (label_sigma given)
 
 
 def _open_folder(scene, writer, out_dir, windows, names, sel, doc, *, force, durable, margin_m, label_at) -> ExportContext:
@@ -148,16 +153,28 @@ def _select(ctx, only_verified: bool, include_stale: bool) -> _Selection:
     else:                       # no window, or an event-only scene: no pose, no label
         N = len(selected)
         T_co, T_bc, valid = np.zeros((N, len(scene.object_names), 4, 4)), np.full((N, 4, 4), np.nan), np.zeros(N, bool)
+    sigma = None
+    opts = ctx.extra.get("label_sigma_options")
+    if opts is not None and len(selected) and scene.has_poses:
+        sig = label_sigmas(scene, t_lab, ctx.names, opts.inputs, K=(ctx.writer.output_camera(scene) or scene.camera).K)
+        keep = opts.keep(sig)
+        ctx.extra["label_sigma_left_out"] = {w.index for w, k in zip(selected, keep) if not k}
+        selected = [w for w, k in zip(selected, keep) if k]
+        T_co, T_bc, valid = T_co[keep], T_bc[keep], valid[keep]
+        sigma = np.stack([sig.sigma_t_mm, sig.sigma_R_deg, sig.sigma_px], -1)[keep]      # (N, K, 3)
+        ctx.extra["label_sigma"] = {w.index: s for w, s, v in zip(selected, sigma, valid) if v}
     ctx.extra["selected"] = selected
     ctx.extra["valid"] = valid
     ctx.extra["row_of"] = {w.index: r for r, w in enumerate(selected)}
-    return _Selection(selected, T_co, T_bc, valid, touched, reasons)
+    return _Selection(selected, T_co, T_bc, valid, touched, reasons, sigma)
 
 
 def _new_summary(ctx, selection: _Selection, jobs: int, only_verified: bool, include_stale: bool) -> ExportSummary:
     n_all, n_sel = len(ctx.windows), len(selection.windows)
+    n_sigma = len(ctx.extra.get("label_sigma_left_out", ()))
     summary = ExportSummary(format=ctx.writer.fmt, windows_total=n_all, selected=n_sel,
-                            filtered_unverified=n_all - n_sel, out_dir=str(ctx.out_dir), jobs=jobs,
+                            filtered_unverified=n_all - n_sel - n_sigma, filtered_label_sigma=n_sigma,
+                            out_dir=str(ctx.out_dir), jobs=jobs,
                             config_sha256=ctx.sha, timings_s=dict.fromkeys(STAGES, 0.0),
                             events_only=not ctx.scene.has_poses)
     if ctx.scene.has_poses:       # an event-only scene's windows are not "unlabeled": it has nothing to label
@@ -182,7 +199,8 @@ def _run(ctx, selection: _Selection, summary: ExportSummary, jobs: int, progress
     for r, (w, v) in enumerate(zip(selection.windows, selection.valid)):
         if w.index in done or (not v and not writer.process_unlabeled):
             continue
-        tasks.append(WindowTask(w, selection.T_cam_obj[r], selection.T_base_cam[r], bool(v), r))
+        tasks.append(WindowTask(w, selection.T_cam_obj[r], selection.T_base_cam[r], bool(v), r,
+                                None if selection.sigma is None else selection.sigma[r]))
     summary.skipped_complete = sum(1 for w, v in zip(selection.windows, selection.valid)
                                    if w.index in done and (v or writer.process_unlabeled))
     records = dict(done)

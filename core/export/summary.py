@@ -62,6 +62,8 @@ class ExportSummary:
     unlabeled_windows: list = field(default_factory=list)
     unlabeled_reasons: dict = field(default_factory=dict)
     filtered_unverified: int = 0
+    #: windows left out because a label's sigma exceeded --max-label-sigma-mm / --max-label-sigma-deg
+    filtered_label_sigma: int = 0
     review_marked: int = 0
     review_unused: int = 0
     review_unused_reasons: dict = field(default_factory=dict)

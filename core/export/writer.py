@@ -45,18 +45,23 @@ class WindowTask:
     T_base_cam: np.ndarray     # (4, 4)
     valid: bool
     row: int = -1              # position among the selected windows (HDF5 row)
+    #: (K exported, 3): each label's sigma_t_mm, sigma_R_deg, sigma_px (None: the export computes none)
+    sigma: np.ndarray | None = None
 
     def __reduce__(self):
         """Pickled with its poses as bytes: in-band, where Dask's pickling sends every numpy array of a chunk as
         its own out-of-band frame (two a window: ~0.1 ms a window of the driver's CPU, issue 27.2)."""
         T_co = np.ascontiguousarray(self.T_cam_obj, np.float64)
+        sigma = None if self.sigma is None else np.asarray(self.sigma, np.float64).tolist()
         return _task_from_bytes, (self.window, T_co.tobytes(), T_co.shape,
-                                  np.ascontiguousarray(self.T_base_cam, np.float64).tobytes(), self.valid, self.row)
+                                  np.ascontiguousarray(self.T_base_cam, np.float64).tobytes(), self.valid, self.row,
+                                  sigma)
 
 
-def _task_from_bytes(window, T_co: bytes, shape, T_bc: bytes, valid, row) -> WindowTask:
+def _task_from_bytes(window, T_co: bytes, shape, T_bc: bytes, valid, row, sigma=None) -> WindowTask:
     return WindowTask(window, np.frombuffer(T_co, np.float64).reshape(shape).copy(),
-                      np.frombuffer(T_bc, np.float64).reshape(4, 4).copy(), valid, row)
+                      np.frombuffer(T_bc, np.float64).reshape(4, 4).copy(), valid, row,
+                      None if sigma is None else np.asarray(sigma, np.float64))
 
 
 class FormatWriter:

@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from evpose.core.label.labels import label_poses
 
-__all__ = ["InputSigmas", "LabelSigmas", "interpolation_bounds", "label_sigmas", "skew_matrix"]
+__all__ = ["InputSigmas", "LabelSigmaOptions", "LabelSigmas", "interpolation_bounds", "label_sigmas", "skew_matrix"]
 
 
 @dataclass(frozen=True)
@@ -216,3 +216,34 @@ def _contour_sigma_px(scene, names, T_co: np.ndarray, cov: np.ndarray, K: np.nda
             n_front = front.sum(axis=1)
             out[:, k] = np.where(n_front > 0, np.sqrt(np.nansum(var, axis=1) / np.maximum(n_front, 1)), np.nan)
     return out
+
+
+@dataclass(frozen=True)
+class LabelSigmaOptions:
+    """What an export does with label uncertainty: the inputs' sigma it is computed from, and the limits above which
+    a window is left out (None: no limit). Part of the export's fingerprint."""
+
+    inputs: InputSigmas
+    max_mm: float | None = None
+    max_deg: float | None = None
+
+    def __post_init__(self):
+        for name in ("max_mm", "max_deg"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"max_label_sigma_{name[4:]}: must be a number > 0, got {v!r}")
+
+    def to_json(self) -> dict:
+        return {"inputs": {k: v for k, v in self.inputs.__dict__.items()}, "max_mm": self.max_mm,
+                "max_deg": self.max_deg}
+
+    def keep(self, s: "LabelSigmas") -> np.ndarray:
+        """(N,) whether each window's labels are within the limits (a window without a label is kept: it is
+        counted as unlabeled)."""
+        ok = np.ones(len(s.valid), bool)
+        with np.errstate(invalid="ignore"):
+            if self.max_mm is not None:
+                ok &= ~(np.nanmax(s.sigma_t_mm, axis=1, initial=0.0) > self.max_mm)
+            if self.max_deg is not None:
+                ok &= ~(np.nanmax(s.sigma_R_deg, axis=1, initial=0.0) > self.max_deg)
+        return ok | ~s.valid
