@@ -1,0 +1,183 @@
+"""Does the predicted label sigma cover the labels' actual error? (tracker issue 28.1)
+
+Per scene of the frozen validation family (``bench/validation_family.json``: the independent ray-casting generator,
+never tuned on), as a user would run it: ``evpose sync --edges`` (the event-rate stage, then the joint fit of clock
+and object poses from edges with its mounting check), its estimates applied; every 10 ms window labelled with them and
+compared with the labels of the scene's ground truth (true clock, true object poses, true hand-eye, the same trajectory
+samples). The predicted sigma is :func:`evpose.core.label.uncertainty.label_sigmas` from the estimates' own sigma
+(joint clock offset and skew, each object's pose; the hand-eye's when the mounting check found one) plus the
+trajectory's interpolation bound -- which the simulated truth does not contain (it interpolates the same samples),
+so the check is conservative there.
+
+Printed per scene and pooled: the share of labels with |error| / sigma <= 2 (the issue's target: >= 90 %) for the
+translation of the label's origin (mm) and its rotation (degrees; for a solid of revolution the tilt of its axis, its
+spin being unobservable and held), the median ratio, and the scenes whose joint fit was not accepted (their labels
+keep the rate-stage clock and the scene's poses, with no pose sigma: reported apart). ``--figure FILE`` writes the
+figure of |error| against sigma (log-log, the 1:1 and 2:1 lines).
+
+Usage: ``python bench/label_coverage.py [--scenes NAME ...] [--json OUT] [--figure FILE]`` (scenes are generated on
+first use by ``bench/validation_scenes.py``; minutes each).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+BENCH = Path(__file__).resolve().parent
+sys.path.insert(0, str(BENCH))
+
+import validation_scenes as vs  # noqa: E402
+
+
+def _angle_deg(R_a, R_b, axis=None) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    if axis is not None:                              # a solid of revolution: the tilt of its axis only
+        a, b = R_a @ axis, R_b @ axis
+        return np.degrees(np.arccos(np.clip(np.sum(a * b, -1), -1.0, 1.0)))
+    return np.degrees(np.linalg.norm(Rotation.from_matrix(R_a @ np.swapaxes(R_b, -1, -2)).as_rotvec(), axis=-1))
+
+
+def evaluate(folder: Path) -> dict:
+    from evpose.core.align.sync_run import SyncOptions, run_sync
+    from evpose.core.data.scene import Scene
+    from evpose.core.export.windows import build_windows
+    from evpose.core.label.labels import label_poses
+    from evpose.core.label.uncertainty import InputSigmas, label_sigmas
+    from evpose.core.sim.synth import load_ground_truth
+
+    gt = load_ground_truth(folder)
+    row = {"scene": folder.name}
+    with Scene.open(folder) as scene:
+        t0 = time.perf_counter()
+        run = run_sync(scene, SyncOptions(edges=True))
+        row["sync_s"] = time.perf_counter() - t0
+        edges = run.edges
+        windows = build_windows(scene.events, window_us=10_000)
+        t = np.array([w.t_label_us for w in windows], np.int64)
+        names = scene.object_names
+        m = scene.manifest
+        # the truth
+        c = scene.corrections
+        c.offset_us = int(gt["clock"]["offset_us"] - m.clock_offset_us)
+        c.skew_ppm = float(gt["clock"]["skew_ppm"] - m.clock_skew_ppm)
+        for n in names:
+            c.object_deltas[n] = np.asarray(gt["objects"][n]["T_base_obj"]) @ np.linalg.inv(m.object(n).T_base_obj)
+        if "hand_eye" in gt:
+            c.hand_eye_delta = np.asarray(gt["hand_eye"]["dT_cam"])
+        T_true, _, v_true = label_poses(scene, t, names)
+        # the estimates, applied as `evpose sync --edges --apply` would
+        c.object_deltas.clear()
+        c.hand_eye_delta = np.eye(4)
+        accepted = edges is not None and edges.accepted
+        row["accepted"] = bool(accepted)
+        if not accepted:
+            return row
+        c.offset_us = int(edges.offset_us - m.clock_offset_us)
+        c.skew_ppm = float(edges.skew_ppm - m.clock_skew_ppm)
+        skew_std = edges.skew_std_ppm if edges.skew_estimated else (edges.skew_std_ppm or 0.0)
+        he = edges.params.hand_eye and edges.hand_eye_dT_cam is not None
+        if he:
+            c.hand_eye_delta = np.asarray(edges.hand_eye_dT_cam)
+        for n, o in edges.objects.items():
+            c.object_deltas[n] = o.dT_base
+        T_est, _, v_est = label_poses(scene, t, names)
+        ok = v_true & v_est
+        ratios_t, ratios_r, pairs = [], [], []
+        for k, n in enumerate(names):
+            o = edges.objects.get(n)
+            sig = InputSigmas(offset_us=float(edges.offset_std_us or 0.0), skew_ppm=float(skew_std or 0.0),
+                              pose_mm=float(o.std_mm) if o is not None else 0.0,
+                              pose_deg=float(o.std_deg) if o is not None else 0.0,
+                              hand_eye_mm=float(edges.hand_eye_std_mm or 0.0) if he else 0.0,
+                              hand_eye_deg=float(edges.hand_eye_std_deg or 0.0) if he else 0.0)
+            s = label_sigmas(scene, t, [n], sig)
+            err_mm = np.linalg.norm(T_est[:, k, :3, 3] - T_true[:, k, :3, 3], axis=-1) * 1e3
+            kind, axis = scene.model(n).symmetry
+            if kind == "spherical":
+                err_deg = np.zeros(len(t))
+            else:
+                err_deg = _angle_deg(T_est[:, k, :3, :3], T_true[:, k, :3, :3], axis if kind == "radial" else None)
+            st, sr = s.sigma_t_mm[:, 0], s.sigma_R_deg[:, 0]
+            ratios_t += list(err_mm[ok] / st[ok])
+            ratios_r += list(err_deg[ok] / sr[ok])
+            pairs += [(float(a), float(b), float(c_), float(d)) for a, b, c_, d in
+                      zip(st[ok][::5], err_mm[ok][::5], sr[ok][::5], err_deg[ok][::5])]
+        row.update(n_labels=len(ratios_t), ratios_t=ratios_t, ratios_r=ratios_r, pairs=pairs)
+    return row
+
+
+def _cov(r) -> str:
+    r = np.asarray(r, float)
+    if not len(r):
+        return "n/a"
+    return f"{np.mean(r <= 2) * 100:5.1f} % <= 2, {np.mean(r <= 4) * 100:5.1f} % <= 4, median {np.median(r):.2f}"
+
+
+def figure(rows, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4))
+    for ax, (i, j, unit) in zip(axes, ((0, 1, "mm"), (2, 3, "deg"))):
+        s = np.array([p[i] for r in rows for p in r.get("pairs", [])])
+        e = np.array([p[j] for r in rows for p in r.get("pairs", [])])
+        if not len(s):
+            continue
+        e = np.maximum(e, 1e-4)
+        ax.loglog(s, e, ".", ms=2, alpha=0.4, color="#1f77b4")
+        lo, hi = min(s.min(), e.min()), max(s.max(), e.max())
+        ax.loglog([lo, hi], [lo, hi], "k-", lw=0.8, label="|error| = sigma")
+        ax.loglog([lo, hi], [2 * lo, 2 * hi], "r--", lw=0.8, label="|error| = 2 sigma")
+        ax.set_xlabel(f"predicted label sigma ({unit})")
+        ax.set_ylabel(f"actual label error ({unit})")
+        ax.set_title("translation" if unit == "mm" else "rotation")
+        ax.legend(fontsize=8)
+    fig.suptitle("label error against predicted sigma, validation scenes (every 5th window)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None} if path.suffix == ".png" else {"Date": None}, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", nargs="*", default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--figure", type=Path, default=None, help="write the figure (.png or .svg)")
+    args = ap.parse_args(argv)
+    folders = vs.ensure_family(args.scenes or None)
+    rows = []
+    for name, folder in folders.items():
+        r = evaluate(folder)
+        rows.append(r)
+        if r["accepted"]:
+            print(f"{name:<36} labels {r['n_labels']:>5}  t: {_cov(r['ratios_t'])}  R: {_cov(r['ratios_r'])}  "
+                  f"(sync {r['sync_s']:.0f} s)", flush=True)
+        else:
+            print(f"{name:<36} joint fit not accepted: labels without pose sigma (left out)", flush=True)
+    acc = [r for r in rows if r["accepted"]]
+    print(f"\npooled over {len(acc)} of {len(rows)} scenes ({time.strftime('%Y-%m-%d')}):")
+    print(f"  translation  {_cov([x for r in acc for x in r['ratios_t']])}")
+    print(f"  rotation     {_cov([x for r in acc for x in r['ratios_r']])}")
+    per_scene_t = [np.mean(np.asarray(r["ratios_t"]) <= 2) for r in acc if r["ratios_t"]]
+    if per_scene_t:
+        print(f"  scenes with >= 90 % of translations within 2 sigma: {sum(v >= 0.9 for v in per_scene_t)} of "
+              f"{len(per_scene_t)}")
+    if args.figure:
+        figure(acc, args.figure)
+        print(f"figure: {args.figure}")
+    if args.json:
+        args.json.write_text(json.dumps([{k: v for k, v in r.items() if k != "pairs"} for r in rows], default=float))
+    return 0 if all(math.isfinite(x) for r in acc for x in r["ratios_t"]) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
