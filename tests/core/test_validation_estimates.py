@@ -71,7 +71,10 @@ def _row(name, validation_scene, evaluate) -> dict:
     return _ROWS[name]
 
 
-def test_textured_scene_sigma_covers_the_truth_and_the_fit_ends_better_than_its_start(validation_scene, evaluate):
+def test_textured_scene_sigma_covers_the_truth_and_the_fit_ends_better_than_its_start(validation_scene, evaluate,
+                                                                                      models_dir):
+    # (models_dir: its clutter draws from E-POSE's meshes; without them the generator makes another scene, on which
+    # these bounds were never set -- a fresh clone without ../shared failed here by 4.1 sigma for 4)
     row = _row("textured", validation_scene, evaluate)
     rate, joint = row["rate"], row["joint"]
     assert rate["ok"] and rate["r"] <= 4, rate
@@ -90,7 +93,7 @@ def test_textured_scene_sigma_covers_the_truth_and_the_fit_ends_better_than_its_
 @pytest.mark.xfail(strict=True, reason="open (issue 23.2): the stand-in cylinder's tilt stays at its start (1.35 -> "
                                        "1.38 deg, also with the clock fixed at the truth) while its sigma says "
                                        "0.32 deg (4.3 sigma)")
-def test_the_tilt_of_the_cylinder_is_fitted_or_its_sigma_covers_it(validation_scene, evaluate):
+def test_the_tilt_of_the_cylinder_is_fitted_or_its_sigma_covers_it(validation_scene, evaluate, models_dir):
     o = _row("textured", validation_scene, evaluate)["objects"]["cylinder"]
     assert o["deg"] < 0.5 * o["start_deg"] or o["r_deg"] <= 4, o
 
