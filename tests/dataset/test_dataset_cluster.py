@@ -157,6 +157,26 @@ def test_bop_shards_through_the_cluster(dask_client, tiny_dataset, tmp_path):
     assert len(keys) == n_keys and {key[:6] for key in keys} == {"000000", "000001", "000002"}
 
 
+def test_label_sigma_through_the_cluster(dask_client, tiny_dataset, tmp_path):
+    """--label-sigma on the cluster (issue 28.1): each window's sigma travels with its task, so the E-POSE files hold
+    the bytes of the single-scene export with the same option, sigma fields included."""
+    import scipy.io
+
+    from evpose.core.dataset.export import export_dataset
+    from evpose.core.export import export_scene
+    from evpose.core.label.uncertainty import InputSigmas, LabelSigmaOptions
+
+    opts = LabelSigmaOptions(InputSigmas(offset_us=2000, pose_mm=1.0, pose_deg=0.5))
+    ds = Dataset.open(tiny_dataset).only(["scene_a"])
+    res = export_dataset(dask_client, ds, "epose", tmp_path / "out", label_sigma=opts)
+    assert res.failed == {}
+    export_scene(ds.scenes[0].path, "epose", tmp_path / "single", label_sigma=opts)
+    got, want = tree(tmp_path / "out" / "scene_a"), tree(tmp_path / "single")
+    assert got.keys() == want.keys() and describe_file_differences(got, want) == []
+    mat = scipy.io.loadmat(next((tmp_path / "out" / "scene_a").rglob("*_data.mat")))
+    assert mat["sigma_t_mm"].shape == (1, 3) and (mat["sigma_t_mm"] > 0).all()
+
+
 def test_bop_export_is_one_dataset(dask_client, tiny_dataset, tmp_path):
     from evpose.core.dataset.export import export_dataset
 
