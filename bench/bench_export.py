@@ -235,7 +235,8 @@ def main(argv=None) -> int:
                                           durable=args.durable, quick=args.quick, out=str(work / f"run{k}"))
                             raw.setdefault(scene, {}).setdefault(fmt, {}).setdefault(code, []).append(r)
                             print(f"  {scene} {fmt} {code}: {r['n']} windows, {r['rate']:.1f} windows/s, "
-                                  f"{r['cpu_rate']:.1f} per CPU-s, {r['files_per_window']:.2f} files/window, load {r['load'][0]:.1f}/{r['load'][1]:.1f} "
+                                  f"{r['cpu_rate']:.1f} per CPU-s, {r['files_per_window']:.2f} files/window, "
+                                  f"load {r['load'][0]:.1f}/{r['load'][1]:.1f} "
                                   f"({r['evpose']})", file=log)
                             subprocess.run(["rm", "-rf", str(work / f"run{k}")], check=False)
         finally:

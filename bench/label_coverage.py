@@ -12,8 +12,8 @@ so the check is conservative there.
 Printed per scene and pooled: the share of labels with |error| / sigma <= 2 (the issue's target: >= 90 %) for the
 translation of the label's origin (mm) and its rotation (degrees; for a solid of revolution the tilt of its axis, its
 spin being unobservable and held), the median ratio, and apart: the scenes whose joint fit was not accepted and the
-objects it held at their start (their labels keep the scene's poses, which no sigma describes). ``--figure FILE`` writes the
-figure of |error| against sigma (log-log, the 1:1 and 2:1 lines).
+objects it held at their start (their labels keep the scene's poses, which no sigma describes). ``--figure FILE``
+writes the figure of |error| against sigma (log-log, the 1:1 and 2:1 lines).
 
 Usage: ``python bench/label_coverage.py [--scenes NAME ...] [--json OUT] [--figure FILE]`` (scenes are generated on
 first use by ``bench/validation_scenes.py``; minutes each).

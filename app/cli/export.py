@@ -143,7 +143,8 @@ def label_sigma_from_args(args):
     limits = (getattr(args, "max_label_sigma_mm", None), getattr(args, "max_label_sigma_deg", None))
     if text is None:
         if any(v is not None for v in limits):
-            raise CliError("--max-label-sigma-mm/-deg: need --label-sigma (the input sigmas the labels' sigma is computed from)")
+            raise CliError("--max-label-sigma-mm/-deg: need --label-sigma (the input sigmas the labels' sigma is "
+                           "computed from)")
         return None
     from evpose.core.label.uncertainty import InputSigmas, LabelSigmaOptions
 

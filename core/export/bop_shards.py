@@ -30,8 +30,8 @@ import tarfile
 
 import numpy as np
 
-__all__ = ["KEY_TO_SHARD", "SHARD_MEMBERS", "DEFAULT_SHARD_WINDOWS", "MAX_SHARD_WINDOWS", "check_shard_windows", "image_key",
-           "json_member", "mask_rle", "shard_name", "shard_tar", "web_dir_name"]
+__all__ = ["KEY_TO_SHARD", "SHARD_MEMBERS", "DEFAULT_SHARD_WINDOWS", "MAX_SHARD_WINDOWS", "check_shard_windows",
+           "image_key", "json_member", "mask_rle", "shard_name", "shard_tar", "web_dir_name"]
 
 #: Images a shard holds by default: ~5 s of one worker's CPU on a 5-object DAVIS346 scene (one task of the
 #: cluster export); BOP's own converter uses at most 1000.
