@@ -91,8 +91,8 @@ def _shards_text(ctx, split: str) -> str:
     web = web_dir_name(split)
     return f"""- Shards (--bop-shards {S}): images and masks are NOT in rgb/, mask/, mask_visib/ but in
   {web}/shard-NNNNNN.tar (BOP-webdataset, bop_toolkit_lib/dataset/bop_webdataset.py), shard N = windows
-  [{S}N, {S}(N+1)), not shuffled; {web}/key_to_shard.json maps each image KEY = SSSSSS_IIIIII (scene id {ctx.writer.key_scene_id}, image id)
-  to its shard. Members: KEY.rgb.png, KEY.camera.json, KEY.gt.json, KEY.gt_info.json, KEY.mask.json and
+  [{S}N, {S}(N+1)), not shuffled; {web}/key_to_shard.json maps each image KEY = SSSSSS_IIIIII
+  (scene id {ctx.writer.key_scene_id}, image id) to its shard. Members: KEY.rgb.png, KEY.camera.json, KEY.gt.json, KEY.gt_info.json, KEY.mask.json and
   KEY.mask_visib.json ({{instance: uncompressed COCO RLE}} as bop_toolkit's pycoco_utils.binary_mask_to_rle,
   column-major runs starting with zeros). The scene-wise JSON files in {split}/ are written too.
 """
