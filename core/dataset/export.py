@@ -112,6 +112,7 @@ def export_dataset(client, dataset, fmt: str, out_dir, *, progress=None, cancel=
     if client is not None:
         events.poll(force=True)
         result.cluster = events.summary()
+        report()            # the last progress line says what the scheduler noticed after the last scene's report
     if fmt == "bop":
         names = [ref.name for ref in dataset.scenes]
         done = [n for n in names if n in result.scenes]
