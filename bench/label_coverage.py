@@ -35,17 +35,9 @@ sys.path.insert(0, str(BENCH))
 import validation_scenes as vs  # noqa: E402
 
 
-def _angle_deg(R_a, R_b, axis=None) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    if axis is not None:                              # a solid of revolution: the tilt of its axis only
-        a, b = R_a @ axis, R_b @ axis
-        return np.degrees(np.arccos(np.clip(np.sum(a * b, -1), -1.0, 1.0)))
-    return np.degrees(np.linalg.norm(Rotation.from_matrix(R_a @ np.swapaxes(R_b, -1, -2)).as_rotvec(), axis=-1))
-
-
 def evaluate(folder: Path) -> dict:
     from evpose.core.align.sync_run import SyncOptions, run_sync
+    from evpose.core.data.geometry import pose_error, rotation_error_about_symmetry
     from evpose.core.data.scene import Scene
     from evpose.core.export.windows import build_windows
     from evpose.core.label.labels import label_poses
@@ -101,12 +93,14 @@ def evaluate(folder: Path) -> dict:
                               hand_eye_mm=float(edges.hand_eye_std_mm or 0.0) if he else 0.0,
                               hand_eye_deg=float(edges.hand_eye_std_deg or 0.0) if he else 0.0)
             s = label_sigmas(scene, t, [n], sig)
-            err_mm = np.linalg.norm(T_est[:, k, :3, 3] - T_true[:, k, :3, 3], axis=-1) * 1e3
+            err_m, _ = pose_error(T_est[:, k], T_true[:, k])
+            err_mm = err_m * 1e3
             kind, axis = scene.model(n).symmetry
             if kind == "spherical":
                 err_deg = np.zeros(len(t))
             else:
-                err_deg = _angle_deg(T_est[:, k, :3, :3], T_true[:, k, :3, :3], axis if kind == "radial" else None)
+                err_deg = np.degrees(rotation_error_about_symmetry(T_est[:, k, :3, :3], T_true[:, k, :3, :3],
+                                                                   axis if kind == "radial" else None))
             st, sr = s.sigma_t_mm[:, 0], s.sigma_R_deg[:, 0]
             ratios_t += list(err_mm[ok] / st[ok])
             ratios_r += list(err_deg[ok] / sr[ok])

@@ -296,13 +296,20 @@ class Scene:
         trajectory; those rows hold the identity.
         """
         T, valid = self.trajectory.at_event_time(t_event_us, clock or self.clock)
+        T = self.camera_from_trajectory(T)
+        T[~valid] = np.eye(4)
+        return T, valid
+
+    def camera_from_trajectory(self, T_base_frame: np.ndarray) -> np.ndarray:
+        """The camera poses ``T_base_cam`` of trajectory poses ``T_base_frame (..., 4, 4)``: the hand-eye calibration
+        for a ``tcp`` trajectory, then the hand-eye correction."""
+        T = T_base_frame
         if self.manifest.trajectory_frame == "tcp":
             T = T @ self.manifest.hand_eye
         dT = self.corrections.hand_eye_delta
         if not np.array_equal(dT, np.eye(4)):
             T = T @ dT
-        T[~valid] = np.eye(4)
-        return T, valid
+        return T
 
     def T_base_obj(self, name: str) -> np.ndarray:
         """Corrected object pose in the base frame: ``dT_base @ T_base_obj``."""

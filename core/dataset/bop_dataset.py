@@ -184,16 +184,17 @@ class _Shards:
     def __init__(self):
         self.keys: dict[str, int] = {}
         self.next = 0
-        self.sharded: list[bool] = []
+        self.sharded: bool | None = None         # whether the scenes have shards (None: no scene seen yet)
 
     def add(self, src: Path, split: str, k: int, stage: Path, files: list) -> None:
         web = web_dir_name(split)
         path = src / web / KEY_TO_SHARD
-        self.sharded.append(path.is_file())
-        if len(set(self.sharded)) > 1:
-            raise BopAssemblyError(f"{src}: {'has' if self.sharded[-1] else 'has no'} {web}/{KEY_TO_SHARD}, unlike "
+        has = path.is_file()
+        if self.sharded is not None and has != self.sharded:
+            raise BopAssemblyError(f"{src}: {'has' if has else 'has no'} {web}/{KEY_TO_SHARD}, unlike "
                                    "the other scenes' exports (export them all with the same --bop-shards)")
-        if not self.sharded[-1]:
+        self.sharded = has
+        if not has:
             return
         try:
             keys = json.loads(path.read_text())
@@ -217,9 +218,9 @@ class _Shards:
         self.keys.update({key: renumber[n] for key, n in keys.items()})
 
     def finish(self, stage: Path, split: str, files: list) -> None:
-        if self.sharded and self.sharded[0]:
+        if self.sharded:
             rel = f"{web_dir_name(split)}/{KEY_TO_SHARD}"
-            write_atomic(stage / rel, json_member(dict(sorted(self.keys.items()))).encode())
+            write_atomic(stage / rel, json_member(dict(sorted(self.keys.items()))))
             files.append(rel)
 
 

@@ -328,7 +328,7 @@ class BopWriter(FormatWriter):
         if self.shard_windows:
             web = web_dir_name(self.split)
             keys = {image_key(self.key_scene_id, i): self.shard_of(i) for i in sorted(written)}
-            write_atomic(self.web_dir(ctx.out_dir) / KEY_TO_SHARD, json_member(keys).encode(), ctx.fsync,
+            write_atomic(self.web_dir(ctx.out_dir) / KEY_TO_SHARD, json_member(keys), ctx.fsync,
                          ctx.owned)
             files.append(f"{web}/{KEY_TO_SHARD}")
             per = [f"{web}/{shard_name(n)}" for n in sorted(set(keys.values()))]
@@ -416,11 +416,13 @@ class BopWriter(FormatWriter):
                "times": {"t_start_us": int(w.t0_us), "t_end_us": int(w.t1_us), "t_label_us": int(w.t_label_us),
                          "n_events": int(len(ev)), "n_events_in_image": int(len(evu)),
                          "offset_us": st["offset_us"], "skew_ppm": st["skew_ppm"]}}
+        texts = tuple(json.dumps(rec[k]) for k in _TEXT_KEYS)     # the scene files' entries, encoded once
         t1 = time.perf_counter()
         if sharded:                          # written with its shard at the chunk's end (end_chunk)
-            members = {"rgb.png": rgb_png, "camera.json": json_member(rec["cam"]).encode(),
-                       "gt.json": json_member(gt).encode(), "gt_info.json": json_member(info).encode(),
-                       "mask.json": json_member(rle_full).encode(), "mask_visib.json": json_member(rle_vis).encode()}
+            gt_text, info_text, cam_text, _ = texts
+            members = {"rgb.png": rgb_png, "camera.json": cam_text.encode(), "gt.json": gt_text.encode(),
+                       "gt_info.json": info_text.encode(), "mask.json": json_member(rle_full),
+                       "mask_visib.json": json_member(rle_vis)}
             st["shards"].setdefault(self.shard_of(w.index), {})[image_key(self.key_scene_id, w.index)] = members
         else:
             with AtomicBatch(wctx.fsync_files, wctx.owned) as batch:
@@ -429,7 +431,7 @@ class BopWriter(FormatWriter):
         t2 = time.perf_counter()
         wctx.timings["images"] += t1 - t0
         wctx.timings["write"] += t2 - t1
-        return rec, {"json": tuple(json.dumps(rec[k]) for k in _TEXT_KEYS)}
+        return rec, {"json": texts}
 
     def begin_chunk(self, wctx) -> None:
         wctx.state["shards"] = {}

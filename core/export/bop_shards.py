@@ -96,6 +96,6 @@ def shard_tar(images: list[tuple[str, dict[str, bytes]]]) -> bytes:
     return buf.getvalue()
 
 
-def json_member(obj) -> str:
-    """The JSON text of a shard member or of ``key_to_shard.json`` (compact: keys in the order given)."""
-    return json.dumps(obj, separators=(",", ":"))
+def json_member(obj) -> bytes:
+    """The JSON bytes of a mask member or of ``key_to_shard.json`` (compact: keys in the order given)."""
+    return json.dumps(obj, separators=(",", ":")).encode()

@@ -156,7 +156,9 @@ def _select(ctx, only_verified: bool, include_stale: bool) -> _Selection:
     sigma = None
     opts = ctx.extra.get("label_sigma_options")
     if opts is not None and len(selected) and scene.has_poses:
-        sig = label_sigmas(scene, t_lab, ctx.names, opts.inputs, K=(ctx.writer.output_camera(scene) or scene.camera).K)
+        sel = ctx.sel                        # the exported objects among the scene's (label_poses gave them all)
+        sig = label_sigmas(scene, t_lab, ctx.names, opts.inputs, K=(ctx.writer.output_camera(scene) or scene.camera).K,
+                           labels=(T_co[:, sel], T_bc, valid))
         keep = opts.keep(sig)
         ctx.extra["label_sigma_left_out"] = {w.index for w, k in zip(selected, keep) if not k}
         selected = [w for w, k in zip(selected, keep) if k]

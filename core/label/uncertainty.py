@@ -29,7 +29,7 @@ finite differences through the scene's own pose pipeline and a Monte Carlo over 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -109,10 +109,7 @@ def interpolation_bounds(scene, t_label_us, clock=None) -> tuple[np.ndarray, np.
     n = len(traj)
     if n < 3:
         return np.zeros(len(t)), np.zeros(len(t))
-    T_s = traj.T()
-    if scene.manifest.trajectory_frame == "tcp":
-        T_s = T_s @ scene.manifest.hand_eye
-    T_s = T_s @ scene.corrections.hand_eye_delta
+    T_s = scene.camera_from_trajectory(traj.T())
     ts = (traj.t_us - traj.t_us[0]).astype(np.float64) * 1e-6           # s
     p = T_s[:, :3, 3]
     dt = np.diff(ts)
@@ -131,30 +128,28 @@ def interpolation_bounds(scene, t_label_us, clock=None) -> tuple[np.ndarray, np.
     return np.maximum(acc_p[i], acc_p[i + 1]) * h2, np.maximum(acc_r[i], acc_r[i + 1]) * h2
 
 
-def label_sigmas(scene, t_label_us, names, sigmas: InputSigmas, K: np.ndarray | None = None) -> LabelSigmas:
+def label_sigmas(scene, t_label_us, names, sigmas: InputSigmas, K: np.ndarray | None = None,
+                 labels=None) -> LabelSigmas:
     """The labels' uncertainty at ``t_label_us`` (event clock, µs) for the objects ``names`` of ``scene`` (see the
-    module docstring); ``K``: the pinhole camera of ``sigma_px`` (default: the scene camera's ``K``)."""
+    module docstring); ``K``: the pinhole camera of ``sigma_px`` (default: the scene camera's ``K``); ``labels``: the
+    caller's ``label_poses(scene, t_label_us, names)`` when it has them (the export's driver)."""
     t = np.atleast_1d(np.asarray(t_label_us, np.int64))
-    T_co, T_bc, valid = label_poses(scene, t, names)
+    T_co, _, valid = label_poses(scene, t, names) if labels is None else labels
     N, Kn = T_co.shape[:2]
     cov = np.zeros((N, Kn, 6, 6))
     clock = scene.clock
-    for field, step in (("offset_us", sigmas.offset_us), ("skew_ppm", sigmas.skew_ppm)):
-        if step <= 0:
-            continue
-        if field == "offset_us":
-            plus = scene.clock_with(offset_us=clock.offset_us + int(round(step)))
-            minus = scene.clock_with(offset_us=clock.offset_us - int(round(step)))
-            h = int(round(step))
-        else:
-            plus = scene.clock_with(skew_ppm=clock.skew_ppm + step)
-            minus = scene.clock_with(skew_ppm=clock.skew_ppm - step)
-            h = step
-        if h == 0:
-            continue
+    d_us = int(round(sigmas.offset_us))              # the clock holds whole µs
+    steps = []                                       # (clock + step, clock - step, input sigma / step)
+    if d_us:
+        steps.append((scene.clock_with(offset_us=clock.offset_us + d_us),
+                      scene.clock_with(offset_us=clock.offset_us - d_us), sigmas.offset_us / d_us))
+    if sigmas.skew_ppm > 0:
+        steps.append((scene.clock_with(skew_ppm=clock.skew_ppm + sigmas.skew_ppm),
+                      scene.clock_with(skew_ppm=clock.skew_ppm - sigmas.skew_ppm), 1.0))
+    for plus, minus, scale in steps:
         Tp, _, vp = label_poses(scene, t, names, clock=plus)
         Tm, _, vm = label_poses(scene, t, names, clock=minus)
-        col = _pose_error(Tp, Tm) / (2.0 * h) * step                 # de per sigma of the input (N, K, 6)
+        col = _pose_error(Tp, Tm) * (0.5 * scale)                   # de per sigma of the input (N, K, 6)
         col[~(vp & vm)] = 0.0
         cov += col[..., :, None] * col[..., None, :]
     R = T_co[..., :3, :3]
@@ -234,8 +229,7 @@ class LabelSigmaOptions:
                 raise ValueError(f"max_label_sigma_{name[4:]}: must be a number > 0, got {v!r}")
 
     def to_json(self) -> dict:
-        return {"inputs": {k: v for k, v in self.inputs.__dict__.items()}, "max_mm": self.max_mm,
-                "max_deg": self.max_deg}
+        return {"inputs": asdict(self.inputs), "max_mm": self.max_mm, "max_deg": self.max_deg}
 
     def keep(self, s: "LabelSigmas") -> np.ndarray:
         """(N,) whether each window's labels are within the limits (a window without a label is kept: it is

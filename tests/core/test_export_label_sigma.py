@@ -26,7 +26,7 @@ def _expected(scene_dir, index, K=None):
         windows = {w.index: w for w in build_windows(scene.events, window_us=10_000)}
         t = np.array([windows[i].t_label_us for i in index], np.int64)
         s = label_sigmas(scene, t, scene.object_names, SIG, K=K)
-        return np.stack([s.sigma_t_mm, s.sigma_R_deg, s.sigma_px], -1), scene.camera
+        return np.stack([s.sigma_t_mm, s.sigma_R_deg, s.sigma_px], -1)
     finally:
         scene.close()
 
@@ -41,7 +41,7 @@ def test_bop_writes_scene_gt_uncertainty(tiny_scene_dir, tmp_path):
     scene = Scene.open(tiny_scene_dir)
     K = scene.camera.undistorted(scene.camera.K).K
     scene.close()
-    want, _ = _expected(tiny_scene_dir, index, K)
+    want = _expected(tiny_scene_dir, index, K)
     for r, i in enumerate(index):
         assert [e["obj_id"] for e in doc[str(i)]] == [g["obj_id"] for g in gt[str(i)]]
         got = np.array([[e["sigma_t_mm"], e["sigma_R_deg"], e["sigma_px"]] for e in doc[str(i)]])
@@ -59,7 +59,7 @@ def test_epose_and_h5_carry_the_sigma_of_each_label(tiny_scene_dir, tmp_path):
     assert mats
     manifest = json.loads((tmp_path / "e" / "export_manifest.json").read_text())
     written = [i for i, st in zip(manifest["windows"]["index"], manifest["windows"]["status"]) if st == "written"]
-    want, _ = _expected(tiny_scene_dir, written)
+    want = _expected(tiny_scene_dir, written)
     for r, path in enumerate(mats):
         m = scipy.io.loadmat(path)
         got = np.stack([m["sigma_t_mm"][0], m["sigma_R_deg"][0], m["sigma_px"][0]], -1)
@@ -69,7 +69,7 @@ def test_epose_and_h5_carry_the_sigma_of_each_label(tiny_scene_dir, tmp_path):
         valid = f["windows"]["valid"][:]
         idx = f["windows"]["index"][:]
         sig = f["label_sigma"][:]
-    w2, _ = _expected(tiny_scene_dir, idx[valid])
+    w2 = _expected(tiny_scene_dir, idx[valid])
     assert np.allclose(sig[valid], w2, rtol=1e-12) and np.isnan(sig[~valid]).all()
 
 

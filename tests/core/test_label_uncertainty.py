@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evpose.core.data.geometry import make_T
+from evpose.core.data.geometry import T_from_rotvec, make_T
 from evpose.core.data.scene import Scene
 from evpose.core.data.trajectory import Trajectory
 from evpose.core.label.labels import label_poses
@@ -49,7 +49,7 @@ def _object_delta_base(T_bo, centre, d_t, d_theta):
     """The base-frame correction (left-multiplied, as Scene.T_base_obj applies it) that moves the object's centre by
     ``d_t`` and rotates it by ``d_theta`` about its centre, both in the object's axes."""
     C = make_T(np.eye(3), centre)
-    body = make_T(Rotation.from_rotvec(d_theta).as_matrix(), d_t)
+    body = T_from_rotvec(d_theta, d_t)
     return T_bo @ C @ body @ np.linalg.inv(C) @ np.linalg.inv(T_bo)
 
 
@@ -81,7 +81,7 @@ def test_each_input_against_finite_differences_through_the_pipeline(scene):
     scene.corrections.object_deltas.clear()
     # hand-eye: T_base_cam @ dT
     d_t, d_th = np.array([2e-5, -1e-5, 0.0]), np.array([0.0, 0.0, 2e-4])
-    scene.corrections.hand_eye_delta = make_T(Rotation.from_rotvec(d_th).as_matrix(), d_t)
+    scene.corrections.hand_eye_delta = T_from_rotvec(d_th, d_t)
     T2, _, _ = label_poses(scene, t, names)
     e_t, e_R = pose_error(T2, T0)
     t_co = T0[..., :3, 3]
@@ -129,7 +129,7 @@ def test_propagation_matches_a_monte_carlo_over_the_inputs(scene):
             scene.corrections.object_deltas[n] = _object_delta_base(scene.manifest.object(n).T_base_obj, centres[n],
                                                                     d_t, d_th)
         d_t, d_th = _draw(rng, 1e-3 * sig.hand_eye_mm, np.radians(sig.hand_eye_deg))
-        scene.corrections.hand_eye_delta = make_T(Rotation.from_rotvec(d_th).as_matrix(), d_t)
+        scene.corrections.hand_eye_delta = T_from_rotvec(d_th, d_t)
         T1, _, valid = label_poses(scene, t, names)
         assert valid.all()
         e_t, e_R = pose_error(T1, T0)
@@ -174,12 +174,10 @@ def test_interpolation_bound_on_a_path_of_known_acceleration():
     a, alpha, dt_us = 2.0, 30.0, 10_000
     t_us = np.arange(0, 400_000 + 1, dt_us, dtype=np.int64)
     ts = t_us * 1e-6
-    T = np.stack([make_T(Rotation.from_rotvec([0, 0, 0.5 * alpha * s * s]).as_matrix(), [0.5 * a * s * s, 0, 0])
+    T = np.stack([T_from_rotvec([0, 0, 0.5 * alpha * s * s], [0.5 * a * s * s, 0, 0])
                   for s in ts])
     traj = Trajectory.from_T(t_us, T)
-    fake = SimpleNamespace(trajectory=traj, clock=ClockModel(0, 0.0, 0),
-                           manifest=SimpleNamespace(trajectory_frame="camera", hand_eye=np.eye(4)),
-                           corrections=SimpleNamespace(hand_eye_delta=np.eye(4)))
+    fake = SimpleNamespace(trajectory=traj, clock=ClockModel(0, 0.0, 0), camera_from_trajectory=lambda T: T)
     t_mid = t_us[5:-5] + dt_us // 2
     b_t, b_r = interpolation_bounds(fake, t_mid)
     h = dt_us * 1e-6
