@@ -419,16 +419,19 @@ def test_killed_exports_rerun_with_other_options_and_force(tiny_scene_dir, tmp_p
     assert keep(got) == keep(ref)                      # every file's bytes, the manifest's too
 
 
-def test_killed_h5_export_resumes_identically(tiny_scene_dir, tmp_path):
+@pytest.mark.parametrize("extra", [(), ("--label-sigma", "offset_us=2000,pose_mm=1,pose_deg=0.5")],
+                         ids=["plain", "label-sigma"])
+def test_killed_h5_export_resumes_identically(tiny_scene_dir, tmp_path, extra):
     """What held before issue 11 must stay: kill -9 of an HDF5 export, and the rerun resumes from the
     partial file (checked sound first) and ends with the same datasets as an uninterrupted export -- and since
-    issue 22 the same bytes (before, a resumed file was 501 bytes larger: chunks landed in another order)."""
+    issue 22 the same bytes (before, a resumed file was 501 bytes larger: chunks landed in another order); with
+    --label-sigma (issue 28.1) too, its label_sigma rows included."""
     import h5py
     import hdf5plugin  # noqa: F401
 
     rng = random.Random(3)
     ref, out = tmp_path / "ref", tmp_path / "ex"
-    args = ["--format", "h5", "-q", "--window-ms", "5", "--objects", "box"]
+    args = ["--format", "h5", "-q", "--window-ms", "5", "--objects", "box", *extra]
     assert_ok(run_cli("export", tiny_scene_dir, "--out", ref, *args))
     resumed = 0
     for attempt in range(6):             # until two kills landed after the first block (a loaded machine is slower)
