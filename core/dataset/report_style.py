@@ -83,7 +83,7 @@ svg .dot{fill:#6b7280}svg .dot.ok{fill:var(--ok)}svg .dot.warn{fill:var(--bad)}s
 svg .err1{stroke:#111827;stroke-width:3}svg .errk{stroke:#9ca3af;stroke-width:1.2}
 """
 
-SORT_JS = """
+SORT_JS = r"""
 document.querySelectorAll('table.sortable').forEach(function(t){
   t.querySelectorAll('thead th').forEach(function(th,col){
     th.addEventListener('click',function(){
