@@ -6,13 +6,7 @@ def half_davis_camera() -> dict:
     """DAVIS346 calibration at half resolution (173x130): same lens, 4x fewer pixels, fast tests."""
     from evpose.core.data.camera import CameraModel
 
-    cam = CameraModel.davis346()
-    K = cam.K.copy()
-    K[:2] *= 0.5
-    # pixel centres are at integers: a half-size pixel grid maps c to (c + 0.5) / 2 - 0.5
-    K[0, 2] = (cam.K[0, 2] + 0.5) / 2 - 0.5
-    K[1, 2] = (cam.K[1, 2] + 0.5) / 2 - 0.5
-    return {"width": 173, "height": 130, "K": K.tolist(), "dist": cam.dist.tolist()}
+    return CameraModel.davis346().binned(2).to_dict()
 
 
 #: The shared synthetic scene: 3 objects, trajectory B at 0.5 m/s, clock offset and pose error injected.

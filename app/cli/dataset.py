@@ -147,16 +147,68 @@ def cmd_refine(args) -> int:
     from evpose.core.dataset.tasks import refine_task
 
     check_windows(args)
+    if args.shared:
+        return _refine_campaign(args)
     opts = JointRunOptions(clock=not args.no_clock, hand_eye=args.hand_eye, windows=args.windows, apply=args.apply)
     result = _map(args, _flagged(args, _open_dataset(args)), refine_task, opts, label="refine")
+    return _finish(args, result, _table(result, [("fit", _verdict), ("changes (+- sigma)", _changes_cell)]))
 
-    def verdict(d):
-        if not d.get("accepted"):
-            return "kept start"
-        return ("applied" if d.get("applied") else "would apply") if d.get("changes") else "no change"
 
-    return _finish(args, result, _table(result, [
-        ("fit", verdict), ("changes (+- sigma)", _changes_cell)]))
+def _verdict(d) -> str:
+    if not d.get("accepted"):
+        return "kept start"
+    return ("applied" if d.get("applied") else "would apply") if d.get("changes") else "no change"
+
+
+def _shared_kinds(text: str) -> set:
+    from evpose.core.dataset.dataset import SHARED_KINDS
+
+    kinds = {k.strip() for k in text.split(",") if k.strip()}
+    for k in kinds:
+        if k not in SHARED_KINDS:
+            raise argparse.ArgumentTypeError(f"unknown kind {k!r} (allowed: {', '.join(SHARED_KINDS)})")
+    if not kinds:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(SHARED_KINDS)}")
+    return kinds
+
+
+def _refine_campaign(args) -> int:
+    """``dataset refine --joint --shared KINDS``: the groups' shared terms fitted together (one campaign fit)."""
+    from evpose.core.align.joint_result import JointParams
+    from evpose.core.dataset.campaign import record_campaign, run_campaign
+
+    if args.only_flagged:
+        raise CliError("--only-flagged and --shared: a campaign fit takes every scene of its groups")
+    ds = _open_dataset(args)
+    for kind in sorted(args.shared):
+        if not any(kind in g.shared for g in ds.groups):
+            raise CliError(f"{ds.root}: no [[groups]] in its dataset.toml shares {kind} (see --shared)")
+    params = JointParams(clock=not args.no_clock, skew="fixed", hand_eye=args.hand_eye or "hand-eye" in args.shared,
+                         n_windows=args.windows)
+    with _cluster(args) as client, Progress("dataset refine", not args.quiet) as progress:
+        fit, result = run_campaign(client, ds, args.shared, params, apply=args.apply, progress=progress)
+    doc = {"campaign": fit.to_json()}
+    if args.apply:
+        doc["recorded"] = str(record_campaign(ds, fit, result))
+    result.extra = doc
+    lines = _campaign_lines(fit)
+    return _finish(args, result, "\n".join(lines + [_table(result, [("fit", _verdict),
+                                                                    ("changes (+- sigma)", _changes_cell)])]))
+
+
+def _campaign_lines(fit) -> list:
+    """One line per shared unit of a group: its change and standard errors, and the scenes that share it."""
+    lines = [] if fit.accepted else [f"campaign fit not accepted: {fit.reason}"]
+    for unit, f in fit.hand_eye.items():
+        if unit.startswith("group:"):
+            lines.append(f"{unit[6:]}: hand-eye {f.dt_mm:.2f} mm (+- {f.std_mm:.2f}), {f.dR_deg:.3f} deg "
+                         f"(+- {f.std_deg:.3f}) from {len(f.scenes)} scenes" + ("" if f.fitted else f"; {f.reason}"))
+    for unit, objs in fit.placements.items():
+        if unit.startswith("group:"):
+            for nm, f in objs.items():
+                lines.append(f"{unit[6:]}: {nm} {f.dt_mm:.2f} mm (+- {f.std_mm:.2f}), {f.dR_deg:.2f} deg "
+                             f"(+- {f.std_deg:.2f}) from {len(f.scenes)} scenes" + ("" if f.fitted else f"; {f.reason}"))
+    return lines + [f"{note}" for note in fit.notes]
 
 
 @command("dataset score")
@@ -314,6 +366,9 @@ def add_dataset_parser(subparsers) -> None:
                                                            "fit shows a camera-mounting error gets the hand-eye fitted "
                                                            "and proposed anyway)")
     p.add_argument("--no-clock", action="store_true", help="keep each scene's clock")
+    p.add_argument("--shared", type=_shared_kinds, metavar="KINDS", help="hand-eye,placement: fit the scenes of "
+                   "dataset.toml's [[groups]] together, sharing these terms (one campaign fit; each scene keeps its "
+                   "clock; --apply stores every scene's share as one undo step and records campaign_fit.json)")
     p.add_argument("--windows", type=int, default=24, help="event windows of each fit")
     p.add_argument("--only-flagged", metavar="REPORT.json", help="only the scenes that report (dataset report's JSON) "
                    "ranks for the clock, a pose, the mounting or low scores")

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix",
+__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix", "cluster_scores",
            "small_sample_factor"]
 
 _E05 = math.exp(0.5)
@@ -195,15 +195,7 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
         cov[np.ix_(free, free)] = np.inf
         return cov
     inflate = small_sample_factor(len(ids))
-    G = np.zeros((len(ids), n))
-    psi = J * dk[:, None]                                  # per-event score contributions
-    for i, r in enumerate(rows):
-        if r.stop <= r.start:
-            continue
-        c = lay.cols(i)
-        gr = np.searchsorted(ids, groups[r])
-        for j in range(14):
-            G[:, c[j]] += np.bincount(gr, weights=psi[r, j], minlength=len(ids))
+    G = cluster_scores(J, rows, groups, dk, lay)
     held = np.zeros((n, 0)) if held is None else np.asarray(held, dtype=np.float64).reshape(n, -1)
     for _ in range(lay.n_objects + 2):
         f = np.flatnonzero(free)
@@ -227,6 +219,22 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
             cov[:, cols] = np.inf
             free[cols] = False
     return cov
+
+
+def cluster_scores(J: np.ndarray, rows: list, groups: np.ndarray, dk: np.ndarray, lay: Layout) -> np.ndarray:
+    """``(n_groups, n)``: the score sum ``sum_e K'(s_e) J_e`` of each group of events (``groups``: a group id per
+    event; one row per distinct id, in sorted order), in full-vector indices."""
+    ids = np.unique(groups)
+    G = np.zeros((len(ids), lay.n))
+    psi = J * dk[:, None]                                  # per-event score contributions
+    for i, r in enumerate(rows):
+        if r.stop <= r.start:
+            continue
+        c = lay.cols(i)
+        gr = np.searchsorted(ids, groups[r])
+        for j in range(14):
+            G[:, c[j]] += np.bincount(gr, weights=psi[r, j], minlength=len(ids))
+    return G
 
 
 def small_sample_factor(n_clusters: int) -> float:

@@ -13,7 +13,8 @@ import numpy as np
 
 from evpose.core.errors import InputError
 
-__all__ = ["JointRunOptions", "JointRun", "ProposalError", "run_refine_joint", "apply_proposal", "APPLY_TEXT"]
+__all__ = ["JointRunOptions", "JointRun", "ProposalError", "run_refine_joint", "plan_and_store", "apply_proposal",
+           "APPLY_TEXT"]
 
 #: The undo step's text of an applied joint refinement (the app's Undo names it).
 APPLY_TEXT = "refine clock and poses from edges"
@@ -49,17 +50,14 @@ def run_refine_joint(scene, opts: JointRunOptions, *, progress=None, cancel=None
     (:func:`~evpose.core.align.sync_run.mounting_check`): when it shows what a mounting error does, the fit runs again
     with the hand-eye free, and when the mounting is off beyond its sigma that fit is the answer -- the hand-eye is
     proposed (and stored with ``apply``) instead of a clock and object poses bent to absorb it."""
-    from evpose.core.align.apply import plan_joint_result, save_applied, store_changes
     from evpose.core.align.joint_fit import refine_joint
     from evpose.core.align.joint_result import JointParams
     from evpose.core.align.sync_run import (MOUNTING_MIN_TURN_DEG, _halves, camera_turn_deg, mounting_check,
                                             mounting_suspected)
-    from evpose.core.document.history import History
 
     if not getattr(scene, "has_poses", True):
         scene.require_poses("pose refinement")
     params = JointParams(clock=opts.clock, objects=opts.objects, hand_eye=opts.hand_eye, n_windows=opts.windows)
-    run = JointRun()
     check = opts.clock and not opts.hand_eye and opts.objects is None
     first, second = _halves(progress) if check else (progress, None)
     r = refine_joint(scene, params=params, progress=first, cancel=cancel)
@@ -69,13 +67,23 @@ def run_refine_joint(scene, opts: JointRunOptions, *, progress=None, cancel=None
         r = mounting_check(r, alt, turns=camera_turn_deg(scene) >= MOUNTING_MIN_TURN_DEG)
     elif check and progress is not None:
         progress(1.0, "done (no sign of a camera-mounting error)")
-    run.result = r
+    return plan_and_store(scene, r, opts.apply, APPLY_TEXT)
+
+
+def plan_and_store(scene, r, apply: bool, text: str) -> JointRun:
+    """The document of a joint result ``r`` for ``scene`` (its JSON, ``planned_on``, ``changes``: each part beyond
+    its sigma of what is in effect, ``kept``) and, with ``apply``, the changes stored as one undo step named
+    ``text`` and saved."""
+    from evpose.core.align.apply import plan_joint_result, save_applied, store_changes
+    from evpose.core.document.history import History
+
+    run = JointRun(result=r)
     data = run.data = r.to_json()
     changes, kept = plan_joint_result(scene, r)
     data["planned_on"] = scene.corrections.digest()
     data["changes"] = [c.to_json() for c in changes]
     data["kept"] = kept
-    data["applied"] = bool(opts.apply) and store_changes(History(scene.corrections), changes, APPLY_TEXT)
+    data["applied"] = bool(apply) and store_changes(History(scene.corrections), changes, text)
     if data["applied"]:
         run.saved_line = save_applied(scene, data)
     return run

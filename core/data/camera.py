@@ -162,6 +162,17 @@ class CameraModel:
     def to_dict(self) -> dict:
         return {"width": self.width, "height": self.height, "K": self.K.tolist(), "dist": self.dist.tolist()}
 
+    def binned(self, factor: int = 2) -> "CameraModel":
+        """The same lens with ``factor x factor`` pixels read as one (``width // factor`` x ``height // factor``):
+        focal lengths divided by ``factor``, the principal point on the coarse grid (pixel centres are at integers,
+        so ``c`` maps to ``(c + 0.5) / factor - 0.5``), the distortion unchanged (it acts on normalised
+        coordinates). E.g. half-resolution DAVIS346 scenes for fast tests and benchmarks."""
+        K = self.K.copy()
+        K[:2] /= factor
+        K[0, 2] = (self.K[0, 2] + 0.5) / factor - 0.5
+        K[1, 2] = (self.K[1, 2] + 0.5) / factor - 0.5
+        return CameraModel(K, self.dist, self.width // factor, self.height // factor, source=f"{self.source} binned")
+
     def __repr__(self) -> str:
         return (f"CameraModel({self.width}x{self.height}, fx={self.K[0, 0]:.2f}, fy={self.K[1, 1]:.2f}, "
                 f"cx={self.K[0, 2]:.2f}, cy={self.K[1, 2]:.2f}, dist={self.dist.tolist()})")

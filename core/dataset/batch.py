@@ -26,17 +26,20 @@ class BatchResult:
     #: workers lost and tasks rerun meanwhile (:meth:`ClusterEvents.summary
     #: <evpose.core.dataset.cluster_events.ClusterEvents.summary>`; None: not on a cluster)
     cluster: dict | None = None
+    #: more of the command's document (e.g. ``campaign``: the campaign fit of ``dataset refine --shared``)
+    extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         doc = {"dataset": self.dataset, "scenes": self.scenes, "failed": self.failed, "runtime_s": self.runtime_s}
         if self.cluster is not None:
             doc["cluster"] = self.cluster
-        return doc
+        return {**doc, **self.extra}
 
     def ordered(self, names: list[str]) -> "BatchResult":
         """The same result with ``scenes`` and ``failed`` in dataset order."""
         return BatchResult(self.dataset, {n: self.scenes[n] for n in names if n in self.scenes},
-                           {n: self.failed[n] for n in names if n in self.failed}, self.runtime_s, self.cluster)
+                           {n: self.failed[n] for n in names if n in self.failed}, self.runtime_s, self.cluster,
+                           self.extra)
 
 
 def failure_text(exc: BaseException) -> str:

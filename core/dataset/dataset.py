@@ -15,6 +15,14 @@ name order (hidden folders, such as the staging folder of an import in progress,
     [defaults.trajectory]                 # frame, hand_eye, max_gap_us (never a path)
     hand_eye = [[...], ...]
 
+    [[groups]]                            # what scenes share (evpose dataset refine --joint --shared ...)
+    name = "day1"                         # unique among the groups
+    shared = ["hand-eye"]                 # "hand-eye" (one camera mounting), "placement" (one T_base_obj each)
+    scenes = ["seq_001", "seq_002"]       # scene names (their folders' names)
+
+A scene may be in one group per kind of shared term (a recording day's hand-eye and its scene's placement);
+each scene keeps its own clock.
+
 Each scene keeps its own ``corrections.json``: there is no second copy of the truth. Scenes are named
 by their folder's name (unique within a dataset).
 
@@ -41,13 +49,15 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["DATASET_FILENAME", "DATASET_FORMAT", "DatasetError", "SceneRef", "Dataset"]
+__all__ = ["DATASET_FILENAME", "DATASET_FORMAT", "SHARED_KINDS", "DatasetError", "Group", "SceneRef", "Dataset"]
 
 DATASET_FILENAME = "dataset.toml"
 DATASET_FORMAT = "evpose-dataset/1"
 #: Tables and keys ``[defaults]`` may give (paths stay per scene: they travel with the scene's folder).
 DEFAULT_KEYS = {"camera": {"width", "height", "K", "dist"}, "trajectory": {"frame", "hand_eye", "max_gap_us"},
                 "clock": {"offset_us", "skew_ppm"}}
+#: What ``[[groups]]`` of scenes may share: the camera mounting (hand-eye) and the objects' placement (T_base_obj).
+SHARED_KINDS = ("hand-eye", "placement")
 
 
 class DatasetError(InputError):
@@ -64,6 +74,15 @@ class SceneRef:
     error: str | None = None
 
 
+@dataclass(frozen=True)
+class Group:
+    """Scenes that share terms of the campaign fit: ``shared`` kinds of :data:`SHARED_KINDS`, ``scenes`` by name."""
+
+    name: str
+    shared: tuple
+    scenes: tuple
+
+
 @dataclass
 class Dataset:
     """The scenes of a dataset, in dataset order, and the defaults they share."""
@@ -73,6 +92,11 @@ class Dataset:
     scenes: list[SceneRef]
     defaults: dict = field(default_factory=dict)
     source: str = "folder"        # "folder" (subfolders with a scene.toml) or "dataset.toml"
+    groups: list = field(default_factory=list)     # :class:`Group` of dataset.toml's [[groups]]
+
+    def group_of(self, name: str, kind: str) -> Group | None:
+        """The group sharing ``kind`` that scene ``name`` is in (None: the scene has its own)."""
+        return next((g for g in self.groups if kind in g.shared and name in g.scenes), None)
 
     @classmethod
     def open(cls, path) -> "Dataset":
@@ -101,7 +125,7 @@ class Dataset:
             if n not in known:
                 raise DatasetError(f"{self.root}: no scene named {n!r}")
         return Dataset(self.root, self.name, [ref for ref in self.scenes if ref.name in set(names)], self.defaults,
-                       self.source)
+                       self.source, self.groups)
 
     def scene(self, name: str) -> SceneRef:
         for ref in self.scenes:
@@ -158,8 +182,49 @@ def _from_file(path: Path) -> Dataset:
     name = data.get("name", root.name)
     if not isinstance(name, str) or not name:
         raise DatasetError(f"{path}: name: expected a non-empty string, got {name!r}")
-    return Dataset(root, name, _scene_list(path, root, data.get("scenes")), _defaults(path, data.get("defaults", {})),
-                   "dataset.toml")
+    scenes = _scene_list(path, root, data.get("scenes"))
+    return Dataset(root, name, scenes, _defaults(path, data.get("defaults", {})), "dataset.toml",
+                   _groups(path, data.get("groups", []), [ref.name for ref in scenes]))
+
+
+def _groups(path: Path, entries, names: list) -> list:
+    """``[[groups]]`` checked: each a table with a unique ``name``, ``shared`` kinds of :data:`SHARED_KINDS`
+    and ``scenes`` of this dataset, no scene in two groups that share the same kind."""
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise DatasetError(f"{path}: groups: expected an array of tables ([[groups]]), got {entries!r}")
+    known, out, member = set(names), [], {}
+    for k, e in enumerate(entries):
+        where = f"{path}: groups[{k}]"
+        for key in e:
+            if key not in ("name", "shared", "scenes"):
+                raise DatasetError(f"{where}.{key}: not a group field (allowed: name, scenes, shared)")
+        name = e.get("name")
+        if not isinstance(name, str) or not name.strip():
+            raise DatasetError(f"{where}.name: expected a non-empty string, got {name!r}")
+        if any(g.name == name for g in out):
+            raise DatasetError(f"{where}.name: a second group named {name!r}")
+        shared = e.get("shared")
+        if (not isinstance(shared, list) or not shared or not all(isinstance(x, str) for x in shared)
+                or len(set(shared)) != len(shared)):
+            raise DatasetError(f"{where}.shared: expected a list of distinct kinds from {list(SHARED_KINDS)}, "
+                               f"got {shared!r}")
+        for kind in shared:
+            if kind not in SHARED_KINDS:
+                raise DatasetError(f"{where}.shared: unknown kind {kind!r} (allowed: {', '.join(SHARED_KINDS)})")
+        scenes = e.get("scenes")
+        if not isinstance(scenes, list) or not scenes or not all(isinstance(x, str) for x in scenes):
+            raise DatasetError(f"{where}.scenes: expected a non-empty list of scene names, got {scenes!r}")
+        for x in scenes:
+            if x not in known:
+                raise DatasetError(f"{where}.scenes: {x!r} is not a scene of this dataset (scenes are named by "
+                                   "their folders' names)")
+            for kind in shared:
+                if (x, kind) in member:
+                    raise DatasetError(f"{where}.scenes: {x!r} is also in group {member[(x, kind)]!r}, which "
+                                       f"shares {kind} too (a scene has one {kind})")
+                member[(x, kind)] = name
+        out.append(Group(name, tuple(shared), tuple(dict.fromkeys(scenes))))
+    return out
 
 
 def _scene_list(path: Path, root: Path, entries) -> list[SceneRef]:

@@ -138,10 +138,11 @@ def _write_scene(tmp: Path, out_dir: Path, cfg: SynthConfig, world: _World) -> d
         recorded = _with_mounting_error(recorded, world.hand_eye_error)
     recorded.save_csv(tmp / "trajectory.csv")
     specs, injected = [], {}
+    rng = world.rng if cfg.pose_error_seed is None else np.random.default_rng([cfg.pose_error_seed, 104729])
     for m, T in zip(world.models, world.T_true):
         mesh_path = tmp / "models" / f"{m.name}.ply"
         trimesh.Trimesh(m.vertices_m, m.faces, process=False).export(mesh_path)
-        dT = (inject_pose_error(T, cfg.pose_error_mm, cfg.pose_error_deg, world.rng)
+        dT = (inject_pose_error(T, cfg.pose_error_mm, cfg.pose_error_deg, rng)
               if (cfg.pose_error_mm or cfg.pose_error_deg) else np.eye(4))
         T_wrong = dT @ T
         injected[m.name] = {"dT_base": dT.tolist(), "dt_mm": float(cfg.pose_error_mm),

@@ -22,6 +22,10 @@ class SynthConfig:
     hand_eye_error_mm: float = 0.0   # camera mounting error written into the trajectory (camera frame)
     hand_eye_error_deg: float = 0.0
     seed: int = 0
+    #: None: the pose errors are drawn from the scene's own generator (after the motion and the renderer); an int:
+    #: from a generator of their own, so scenes of one placement (same ``seed`` and objects) at other speeds or
+    #: durations get the same wrong poses -- a recording campaign's shared placement error (tracker issue 28.2)
+    pose_error_seed: int | None = None
     texture: str = "checker"         # objects' texture: "checker", "fine" or "plain" (sim.renderer.SceneRenderer)
     pose_rate_hz: float = 250.0      # the recorded trajectory's sample rate
     motion_rate_hz: float = 4000.0   # the rendered (true) motion's sample rate: smooth at the event time scale
