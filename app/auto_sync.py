@@ -185,7 +185,7 @@ def apply_proposal(session, p: Proposal) -> bool:
         if p.poses or p.hand_eye_fitted:
             session.apply_joint_estimate(p.joint, p.undo_text, clock=False, poses=True)
         if p.offset_us is not None:
-            session.apply_clock_estimate(p.offset_us, p.skew_ppm, p.undo_text)
+            session.apply_clock_estimate(p.offset_us, p.skew_ppm, p.undo_text, p.offset_std_us, p.skew_std_ppm)
     return True
 
 

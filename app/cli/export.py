@@ -126,11 +126,12 @@ def add_bop_shards_arg(p) -> None:
 
 def add_label_sigma_args(p) -> None:
     """``--label-sigma`` and its limits (``export`` and ``dataset export``)."""
-    p.add_argument("--label-sigma", metavar="K=V,...", default=None,
+    p.add_argument("--label-sigma", metavar="auto|K=V,...", default=None,
                    help="write each label's 1-sigma (t mm, rotation deg, contour px) propagated from these input "
                         "sigmas: offset_us, skew_ppm, pose_mm, pose_deg, hand_eye_mm, hand_eye_deg (RMS of 3D "
                         "errors; unnamed inputs 0; the trajectory's interpolation error always added), e.g. "
-                        "offset_us=2000,pose_mm=2,pose_deg=1")
+                        "offset_us=2000,pose_mm=2,pose_deg=1; auto: each object's from the sigmas its applied "
+                        "estimates stored in corrections.json (inputs without one count as exact)")
     p.add_argument("--max-label-sigma-mm", type=float, default=None, metavar="X",
                    help="with --label-sigma: leave out (and count) windows where a label's sigma_t exceeds X mm")
     p.add_argument("--max-label-sigma-deg", type=float, default=None, metavar="Y",
@@ -148,6 +149,8 @@ def label_sigma_from_args(args):
         return None
     from evpose.core.label.uncertainty import InputSigmas, LabelSigmaOptions
 
+    if text.strip() == "auto":
+        return LabelSigmaOptions(None, *limits)
     fields = {}
     for item in (s.strip() for s in text.split(",") if s.strip()):
         key, sep, value = item.partition("=")

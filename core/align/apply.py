@@ -71,7 +71,8 @@ def apply_offset_result(history, scene, result: RefineResult, text: str = "clock
     if not clock_differs(scene, result.offset_us, result.skew_ppm, result.offset_std_us,
                          getattr(result, "skew_std_ppm", None)):
         return False
-    apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text)
+    apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text, result.offset_std_us,
+                         getattr(result, "skew_std_ppm", None))
     return True
 
 
@@ -112,7 +113,7 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
     ``(changes, kept)`` -- the :class:`PlannedChange` of each part that differs from what is in effect by more
     than :data:`APPLY_SIGMAS` of its standard errors, and one line per part left as it is and why. Nothing for a
     fit that was not accepted."""
-    from evpose.core.document.estimates import apply_pose_estimate
+    from evpose.core.document.estimates import apply_hand_eye_estimate, apply_pose_estimate
 
     changes, kept = [], []
     if not result.accepted:
@@ -125,7 +126,8 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
 
             def store_clock(history, text_, r=result):
                 # the total clock the fit used: its own skew, or the start's it kept (for sync, the rate estimate's)
-                apply_clock_estimate(history, scene, r.offset_us, r.skew_ppm, text_)
+                apply_clock_estimate(history, scene, r.offset_us, r.skew_ppm, text_, r.offset_std_us,
+                                     r.skew_std_ppm if r.skew_estimated else None)
             changes.append(PlannedChange("clock", "", text, vals, store_clock))
         else:
             kept.append(f"clock: within {APPLY_SIGMAS:g} sigma of the clock in effect")
@@ -134,7 +136,7 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
     for name, o in result.objects.items():
         if _beyond(o.dt_mm, o.std_mm) or _beyond(o.dR_deg, o.std_deg):
             def store_pose(history, text_, name=name, o=o):
-                apply_pose_estimate(history, name, o.dT_base, text_)
+                apply_pose_estimate(history, name, o.dT_base, text_, o.std_mm, o.std_deg)
             changes.append(PlannedChange(
                 "object", name, f"{name}: {o.dt_mm:.2f} mm (+- {o.std_mm:.2f}), {o.dR_deg:.2f} deg (+- {o.std_deg:.2f})",
                 {"dt_mm": o.dt_mm, "std_mm": o.std_mm, "dR_deg": o.dR_deg, "std_deg": o.std_deg}, store_pose))
@@ -144,7 +146,7 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
         r = result
         if _beyond(r.hand_eye_dt_mm, r.hand_eye_std_mm) or _beyond(r.hand_eye_dR_deg, r.hand_eye_std_deg):
             def store_hand_eye(history, text_, H=r.hand_eye_dT_cam):
-                history.set(("hand_eye",), H, text=text_)
+                apply_hand_eye_estimate(history, H, text_, r.hand_eye_std_mm, r.hand_eye_std_deg)
             changes.append(PlannedChange(
                 "hand-eye", "", f"hand-eye: {r.hand_eye_dt_mm:.2f} mm (+- {r.hand_eye_std_mm:.2f}), "
                                 f"{r.hand_eye_dR_deg:.3f} deg (+- {r.hand_eye_std_deg:.3f})",
@@ -189,7 +191,8 @@ def plan_sync(scene, result: SyncResult) -> list:
     text, vals = _clock_change(scene, result.offset_us, result.skew_ppm, result.offset_std_us, skew_std)
 
     def store(history, text_):
-        apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text_)
+        apply_clock_estimate(history, scene, result.offset_us, result.skew_ppm, text_, result.offset_std_us,
+                             skew_std)
     return [PlannedChange("clock", "", text, vals, store)]
 
 

@@ -101,7 +101,7 @@ def apply_proposal(scene, doc: dict) -> str:
     (``doc["planned_on"]``): a change judged against other corrections (another save meanwhile, an earlier apply)
     is never stored. Returns the "applied and saved to ..." line."""
     from evpose.core.align.apply import save_applied
-    from evpose.core.document.estimates import apply_clock_estimate, apply_pose_estimate
+    from evpose.core.document.estimates import apply_clock_estimate, apply_hand_eye_estimate, apply_pose_estimate
     from evpose.core.document.history import History
 
     where = scene.corrections_path
@@ -115,11 +115,17 @@ def apply_proposal(scene, doc: dict) -> str:
     with history.group(APPLY_TEXT):
         for c in changes:
             if c["part"] == "clock":
-                apply_clock_estimate(history, scene, doc["offset_us"], doc["skew_ppm"], APPLY_TEXT)
+                apply_clock_estimate(history, scene, doc["offset_us"], doc["skew_ppm"], APPLY_TEXT,
+                                     doc.get("offset_std_us"), doc.get("skew_std_ppm") if doc.get("skew_estimated")
+                                     else None)
             elif c["part"] == "object":
-                apply_pose_estimate(history, c["name"], np.asarray(doc["objects"][c["name"]]["dT_base"]), APPLY_TEXT)
+                o = doc["objects"][c["name"]]
+                apply_pose_estimate(history, c["name"], np.asarray(o["dT_base"]), APPLY_TEXT, o.get("dt_std_mm"),
+                                    o.get("dR_std_deg"))
             elif c["part"] == "hand-eye":
-                history.set(("hand_eye",), np.asarray(doc["hand_eye"]["dT_cam"], np.float64), text=APPLY_TEXT)
+                he = doc["hand_eye"]
+                apply_hand_eye_estimate(history, np.asarray(he["dT_cam"], np.float64), APPLY_TEXT, he.get("dt_std_mm"),
+                                        he.get("dR_std_deg"))
             else:
                 raise ProposalError(f"{where}: changes: unknown part {c['part']!r}")
     out = dict(doc, applied=True)

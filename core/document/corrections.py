@@ -6,7 +6,11 @@ What is corrected (all optional, identity by default):
 * per-object pose deltas ``dT_base`` (4x4, base frame): ``T_base_obj' = dT_base @ T_base_obj``;
 * a hand-eye delta ``dT_cam`` (4x4, camera frame): ``T_base_cam' = T_base_cam @ dT_cam``;
 * review marks over event-time intervals ``[t0_us, t1_us)``: verified / rejected / flagged
-  (rules in :mod:`core.review`).
+  (rules in :mod:`core.review`);
+* ``sigmas``: the 1-sigma of the values an automatic estimate set (``clock``: ``offset_us``, ``skew_ppm``;
+  ``hand_eye`` and ``object:<name>``: ``mm``, ``deg``), stored with the estimate in the same undo step and cleared
+  when the value is edited by hand (:meth:`evpose.core.document.history.History.set`); what the label sigma of the
+  app and of ``export --label-sigma auto`` start from (tracker issue 28.3). Written only when there is one.
 
 The raw data is never touched. JSON numbers are written with Python's shortest round-trip repr, so
 offsets of 10 s and skews of 1000 ppm come back bit-identical.
@@ -44,8 +48,8 @@ from evpose.core.document.review import (
 )
 from evpose.core.errors import InputError
 
-__all__ = ["CORRECTIONS_FORMAT", "CORRECTIONS_FILENAME", "REVIEW_STATUSES", "Corrections", "CorrectionsError",
-           "CorrectionsWarning", "ReviewMark", "MarkState", "change_field"]
+__all__ = ["CORRECTIONS_FORMAT", "CORRECTIONS_FILENAME", "REVIEW_STATUSES", "SIGMA_FIELDS", "Corrections",
+           "CorrectionsError", "CorrectionsWarning", "ReviewMark", "MarkState", "change_field", "sigma_part"]
 
 CORRECTIONS_FORMAT = "evpose-corrections/1"
 CORRECTIONS_FILENAME = "corrections.json"
@@ -56,7 +60,9 @@ MAX_OFFSET_US = 2 ** 53
 #: Largest clock skew accepted (ppm).
 MAX_SKEW_PPM = 1e6
 #: Keys of the canonical document that a three-way merge compares (everything the user edits).
-DOCUMENT_KEYS = ("clock", "objects", "hand_eye", "reviews")
+DOCUMENT_KEYS = ("clock", "objects", "hand_eye", "reviews", "sigmas")
+#: The fields of each part of ``sigmas`` (units in the names: µs, ppm, mm, degrees).
+SIGMA_FIELDS = {"clock": ("offset_us", "skew_ppm"), "hand_eye": ("mm", "deg"), "object": ("mm", "deg")}
 
 
 class CorrectionsError(InputError):
@@ -91,6 +97,8 @@ class Corrections:
     reviews: list[ReviewMark] = field(default_factory=list)
     scene_name: str | None = None
     revision: int = 0
+    #: part (``"clock"``, ``"hand_eye"``, ``"object:<name>"``) -> its estimate's sigmas (see the module docstring)
+    sigmas: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.reviews = normalize_marks(self.reviews)
@@ -109,7 +117,12 @@ class Corrections:
     def keys(self) -> list[tuple]:
         """Every command key of the document (objects: those with a correction)."""
         return ([("offset_us",), ("skew_ppm",), ("hand_eye",), ("reviews",)]
-                + [("object", n) for n in sorted(self.object_deltas)])
+                + [("object", n) for n in sorted(self.object_deltas)] + [("sigma", p) for p in sorted(self.sigmas)])
+
+    def sigma(self, part: str) -> dict | None:
+        """The sigmas stored for ``part`` (``"clock"``, ``"hand_eye"`` or ``"object:<name>"``); None: none."""
+        v = self.sigmas.get(part)
+        return None if v is None else dict(v)
 
     def get(self, key: tuple):
         """Value at a command key: ``("offset_us",)``, ``("skew_ppm",)``, ``("object", name)``,
@@ -125,6 +138,8 @@ class Corrections:
             return self.hand_eye_delta.copy()
         if kind == "reviews":
             return list(self.reviews)
+        if kind == "sigma":
+            return self.sigma(key[1])
         raise KeyError(key)
 
     def set(self, key: tuple, value) -> None:
@@ -144,6 +159,11 @@ class Corrections:
             self.hand_eye_delta = np.array(value, dtype=np.float64)
         elif kind == "reviews":
             self.reviews = normalize_marks(value)
+        elif kind == "sigma":
+            if value is None:
+                self.sigmas.pop(key[1], None)
+            else:
+                self.sigmas[key[1]] = _read_sigma(value, key[1], f"sigmas.{key[1]}")
         else:
             raise KeyError(key)
 
@@ -159,6 +179,9 @@ class Corrections:
         for n in sorted(set(self.object_deltas) | set(other.object_deltas)):
             if not np.array_equal(self.object_delta(n), other.object_delta(n)):
                 out.append(("object", n))
+        for p in sorted(set(self.sigmas) | set(other.sigmas)):
+            if self.sigma(p) != other.sigma(p):
+                out.append(("sigma", p))
         return out
 
     def review_status(self, t_us: int, obj: str | None = None) -> str | None:
@@ -171,7 +194,7 @@ class Corrections:
 
     # ------------------------------------------------------------------ JSON
     def to_json(self) -> dict:
-        return {
+        d = {
             "format": CORRECTIONS_FORMAT,
             "revision": int(self.revision),
             "scene": self.scene_name,
@@ -180,11 +203,14 @@ class Corrections:
             "hand_eye": {"dT_cam": self.hand_eye_delta.tolist()},
             "reviews": [m.to_json() for m in self.reviews],
         }
+        if self.sigmas:           # only when an estimate left one: files without stay as they were
+            d["sigmas"] = {p: dict(sorted(v.items())) for p, v in sorted(self.sigmas.items())}
+        return d
 
     def canonical(self) -> dict:
         """The edited content only (no format, revision or scene name): equal for equal documents."""
         d = self.to_json()
-        return {k: d[k] for k in DOCUMENT_KEYS}
+        return {k: d[k] for k in DOCUMENT_KEYS if k in d}
 
     def digest(self) -> str:
         """SHA-256 (hex) of :meth:`canonical`: names the corrections an estimate was planned against, so a proposal
@@ -245,7 +271,14 @@ class Corrections:
                 raise CorrectionsError(f"{source}: reviews[{i}]: {exc}") from None
         # files without a revision predate the review rules: later marks won across scopes there
         reviews = normalize_marks(reviews, legacy="revision" not in data)
-        return cls(offset, skew, deltas, hand_eye, reviews, data.get("scene"), revision)
+        raw_sigmas = data.get("sigmas", {})
+        if not isinstance(raw_sigmas, dict):
+            raise CorrectionsError(f"{source}: sigmas: expected an object keyed by part (clock, hand_eye, object:NAME)")
+        try:
+            sigmas = {p: _read_sigma(v, p, f"sigmas.{p}") for p, v in raw_sigmas.items()}
+        except ValueError as exc:
+            raise CorrectionsError(f"{source}: {exc}") from None
+        return cls(offset, skew, deltas, hand_eye, reviews, data.get("scene"), revision, sigmas)
 
     def unknown_objects(self, known) -> list[tuple[str, str]]:
         """``(field, name)`` of every object name used here that is not in ``known``."""
@@ -312,7 +345,39 @@ def change_field(key: tuple) -> str:
         return f"object:{key[1]}"
     if kind in ("hand_eye", "reviews"):
         return kind
+    if kind == "sigma":
+        return "sigmas"
     raise KeyError(key)
+
+
+def sigma_part(key: tuple) -> str | None:
+    """The ``sigmas`` part of a value's command key (``("object", name)`` -> ``"object:<name>"``); None for a key
+    without one (reviews, a sigma itself)."""
+    kind = key[0]
+    if kind in ("offset_us", "skew_ppm"):
+        return "clock"
+    if kind == "object":
+        return f"object:{key[1]}"
+    return "hand_eye" if kind == "hand_eye" else None
+
+
+def _read_sigma(value, part: str, where: str) -> dict:
+    """A part's sigmas checked: its fields (:data:`SIGMA_FIELDS`) as finite numbers >= 0 (at least one)."""
+    kind = part.split(":", 1)[0]
+    fields = SIGMA_FIELDS.get(kind)
+    if fields is None or (kind == "object") != (":" in part) or part.endswith(":"):
+        raise ValueError(f"{where}: unknown part (expected clock, hand_eye or object:NAME)")
+    if not isinstance(value, dict) or not value:
+        raise ValueError(f"{where}: expected an object with {' and/or '.join(fields)}")
+    out = {}
+    for k, v in value.items():
+        if k not in fields:
+            raise ValueError(f"{where}.{k}: not a field (allowed: {', '.join(fields)})")
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (
+                math.isfinite(v) and v >= 0):
+            raise ValueError(f"{where}.{k}: expected a finite number >= 0, got {v!r}")
+        out[k] = float(v)
+    return out
 
 
 def _as_int_us(value, name: str) -> int:

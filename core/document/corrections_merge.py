@@ -71,6 +71,8 @@ def _describe_mark(m: ReviewMark) -> str:
 
 def field_name(key: tuple) -> str:
     """The JSON field of a command key (as error messages name it)."""
+    if key[0] == "sigma":
+        return f"sigmas.{key[1]}"
     return {"offset_us": "clock.offset_us", "skew_ppm": "clock.skew_ppm", "hand_eye": "hand_eye.dT_cam",
             "reviews": "reviews"}.get(key[0]) or f"objects.{key[1]}.dT_base"
 
@@ -80,11 +82,13 @@ def _show(key: tuple, value) -> str:
         return f"{int(value)} us"
     if key[0] == "skew_ppm":
         return f"{float(value)!r} ppm"
+    if key[0] == "sigma":
+        return "no sigma" if value is None else ", ".join(f"{k} {v:g}" for k, v in sorted(value.items()))
     return describe_delta(value)
 
 
 def _same(key: tuple, a, b) -> bool:
-    return a == b if key[0] in ("offset_us", "skew_ppm") else np.array_equal(a, b)
+    return a == b if key[0] in ("offset_us", "skew_ppm", "sigma") else np.array_equal(a, b)
 
 
 def merge(base: Corrections, local: Corrections, disk: Corrections, prefer: str | None = None,
@@ -108,6 +112,7 @@ def merge(base: Corrections, local: Corrections, disk: Corrections, prefer: str 
     keys = [("offset_us",), ("skew_ppm",), ("hand_eye",)]
     keys += [("object", n) for n in sorted(set(base.object_deltas) | set(local.object_deltas)
                                             | set(disk.object_deltas))]
+    keys += [("sigma", p) for p in sorted(set(base.sigmas) | set(local.sigmas) | set(disk.sigmas))]
     for key in keys:
         b, l, d = base.get(key), local.get(key), disk.get(key)
         if _same(key, d, b) or _same(key, l, d):

@@ -19,8 +19,8 @@ import contextlib
 import time
 from typing import Callable
 
-from evpose.core.document.commands import Command, Group, set_command
-from evpose.core.document.corrections import Corrections, change_field
+from evpose.core.document.commands import Command, Group, _same, set_command
+from evpose.core.document.corrections import Corrections, change_field, sigma_part
 from evpose.core.signals import Change, Signal
 
 
@@ -165,8 +165,18 @@ class History:
             self._notify()
 
     def set(self, key: tuple, new, text: str | None = None, mergeable: bool = False) -> None:
-        """Shorthand: push a :class:`SetValue` from the current value to ``new`` (no-op if equal)."""
-        self.push(set_command(self.doc, key, new, text=text, mergeable=mergeable))
+        """Shorthand: push a :class:`SetValue` from the current value to ``new`` (no-op if equal).
+
+        A value that carries an estimate's sigma (:attr:`Corrections.sigmas`) loses it when it changes: the sigma
+        said how far the estimate could be off, not a hand edit (the same undo step, so undo brings both back).
+        An estimate stores its sigma after its value, in the same group (:mod:`evpose.core.document.estimates`)."""
+        part = sigma_part(key)
+        if part is None or self.doc.sigma(part) is None or _same(self.doc.get(key), new):
+            self.push(set_command(self.doc, key, new, text=text, mergeable=mergeable))
+            return
+        with self.group(text or f"set {key[0]}"):
+            self.push(set_command(self.doc, key, new, text=text))
+            self.push(set_command(self.doc, ("sigma", part), None, text=text))
 
     @contextlib.contextmanager
     def group(self, text: str):
@@ -216,3 +226,4 @@ class History:
         self._clean = 0
         self._merge_open = False
         self._notify()
+

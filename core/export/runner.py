@@ -49,7 +49,6 @@ from evpose.core.export.windows import build_windows, review_usage, scene_stalen
 from evpose.core.export.worker import STAGES, WorkerSpec
 from evpose.core.export.writer import ExportContext, FormatWriter, WindowTask
 from evpose.core.label.labels import label_poses
-from evpose.core.label.uncertainty import label_sigmas
 from evpose.core.label.windows import DEFAULT_WINDOW_US
 
 __all__ = ["run_export"]
@@ -157,8 +156,8 @@ def _select(ctx, only_verified: bool, include_stale: bool) -> _Selection:
     opts = ctx.extra.get("label_sigma_options")
     if opts is not None and len(selected) and scene.has_poses:
         sel = ctx.sel                        # the exported objects among the scene's (label_poses gave them all)
-        sig = label_sigmas(scene, t_lab, ctx.names, opts.inputs, K=(ctx.writer.output_camera(scene) or scene.camera).K,
-                           labels=(T_co[:, sel], T_bc, valid))
+        sig = opts.sigmas(scene, t_lab, ctx.names, K=(ctx.writer.output_camera(scene) or scene.camera).K,
+                          labels=(T_co[:, sel], T_bc, valid))
         keep = opts.keep(sig)
         ctx.extra["label_sigma_left_out"] = {w.index for w, k in zip(selected, keep) if not k}
         selected = [w for w, k in zip(selected, keep) if k]

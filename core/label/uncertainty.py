@@ -36,7 +36,8 @@ from scipy.spatial.transform import Rotation
 
 from evpose.core.label.labels import label_poses
 
-__all__ = ["InputSigmas", "LabelSigmaOptions", "LabelSigmas", "interpolation_bounds", "label_sigmas", "skew_matrix"]
+__all__ = ["InputSigmas", "LabelSigmaOptions", "LabelSigmas", "interpolation_bounds", "label_sigmas", "skew_matrix",
+           "stored_input_sigmas", "stored_label_sigmas"]
 
 
 @dataclass(frozen=True)
@@ -215,12 +216,18 @@ def _contour_sigma_px(scene, names, T_co: np.ndarray, cov: np.ndarray, K: np.nda
 
 @dataclass(frozen=True)
 class LabelSigmaOptions:
-    """What an export does with label uncertainty: the inputs' sigma it is computed from, and the limits above which
-    a window is left out (None: no limit). Part of the export's fingerprint."""
+    """What an export does with label uncertainty: the inputs' sigma it is computed from (``inputs``; None:
+    ``auto``, each object's from the estimates stored in the scene's corrections, :func:`stored_input_sigmas`),
+    and the limits above which a window is left out (None: no limit). Part of the export's fingerprint (with auto,
+    the stored sigmas are in the corrections' digest)."""
 
-    inputs: InputSigmas
+    inputs: InputSigmas | None
     max_mm: float | None = None
     max_deg: float | None = None
+
+    @property
+    def auto(self) -> bool:
+        return self.inputs is None
 
     def __post_init__(self):
         for name in ("max_mm", "max_deg"):
@@ -229,7 +236,14 @@ class LabelSigmaOptions:
                 raise ValueError(f"max_label_sigma_{name[4:]}: must be a number > 0, got {v!r}")
 
     def to_json(self) -> dict:
-        return {"inputs": asdict(self.inputs), "max_mm": self.max_mm, "max_deg": self.max_deg}
+        return {"inputs": "auto" if self.auto else asdict(self.inputs), "max_mm": self.max_mm,
+                "max_deg": self.max_deg}
+
+    def sigmas(self, scene, t_label_us, names, K=None, labels=None) -> "LabelSigmas":
+        """:func:`label_sigmas` of these options: the given inputs, or each object's stored ones (auto)."""
+        if not self.auto:
+            return label_sigmas(scene, t_label_us, names, self.inputs, K, labels)
+        return stored_label_sigmas(scene, t_label_us, names, K, labels)
 
     def keep(self, s: "LabelSigmas") -> np.ndarray:
         """(N,) whether each window's labels are within the limits (a window without a label is kept: it is
@@ -241,3 +255,31 @@ class LabelSigmaOptions:
             if self.max_deg is not None:
                 ok &= ~(np.nanmax(s.sigma_R_deg, axis=1, initial=0.0) > self.max_deg)
         return ok | ~s.valid
+
+
+def stored_input_sigmas(corrections, name: str) -> tuple[InputSigmas, list]:
+    """The input sigmas of object ``name``'s labels from the estimates stored in ``corrections``
+    (:attr:`~evpose.core.document.corrections.Corrections.sigmas`: the clock's offset and skew, the object's pose,
+    the hand-eye), and the inputs that have none (``"clock offset"``, ``"object pose"``, ``"hand-eye"``: counted as
+    exact, so the sigma understates the error by what they add -- said wherever the sigma is shown)."""
+    clock = corrections.sigma("clock") or {}
+    pose = corrections.sigma(f"object:{name}") or {}
+    he = corrections.sigma("hand_eye") or {}
+    missing = [what for what, known in (("clock offset", "offset_us" in clock), ("object pose", bool(pose)),
+                                        ("hand-eye", bool(he))) if not known]
+    return InputSigmas(offset_us=clock.get("offset_us", 0.0), skew_ppm=clock.get("skew_ppm", 0.0),
+                       pose_mm=pose.get("mm", 0.0), pose_deg=pose.get("deg", 0.0),
+                       hand_eye_mm=he.get("mm", 0.0), hand_eye_deg=he.get("deg", 0.0)), missing
+
+
+def stored_label_sigmas(scene, t_label_us, names, K=None, labels=None) -> LabelSigmas:
+    """:func:`label_sigmas` with each object's own stored input sigmas (:func:`stored_input_sigmas`)."""
+    t = np.atleast_1d(np.asarray(t_label_us, np.int64))
+    T_co, T_bc, valid = label_poses(scene, t, names) if labels is None else labels
+    parts = [label_sigmas(scene, t, [n], stored_input_sigmas(scene.corrections, n)[0], K,
+                          (T_co[:, k:k + 1], T_bc, valid)) for k, n in enumerate(names)]
+    if not parts:
+        return label_sigmas(scene, t, [], InputSigmas(), K, (T_co, T_bc, valid))
+    return LabelSigmas(np.concatenate([p.cov for p in parts], 1), np.concatenate([p.sigma_t_mm for p in parts], 1),
+                       np.concatenate([p.sigma_R_deg for p in parts], 1), np.concatenate([p.sigma_px for p in parts], 1),
+                       valid)

@@ -309,10 +309,12 @@ class Session:
             raise KeyError(field_name)
 
     def apply_clock_estimate(self, offset_us: int, skew_ppm: float | None = None,
-                             text: str = "clock estimate") -> None:
+                             text: str = "clock estimate", offset_std_us: float | None = None,
+                             skew_std_ppm: float | None = None) -> None:
         """Make an accepted clock estimate the clock in effect (offset in us, skew in ppm, both
-        totals; None keeps the skew), one undo step (:func:`evpose.core.document.estimates.apply_clock_estimate`)."""
-        apply_clock_estimate(self.history, self.scene, offset_us, skew_ppm, text)
+        totals; None keeps the skew) with its standard errors, one undo step
+        (:func:`evpose.core.document.estimates.apply_clock_estimate`)."""
+        apply_clock_estimate(self.history, self.scene, offset_us, skew_ppm, text, offset_std_us, skew_std_ppm)
 
     def apply_pose_estimate(self, name: str, dT_base, text: str | None = None) -> None:
         """Make an accepted pose estimate ``dT_base`` (4x4, base frame) the correction of object

@@ -103,3 +103,35 @@ def test_cli_label_sigma(tiny_scene_dir, tmp_path, capsys):
                      *args]) != 0
         err = capsys.readouterr().err
         assert msg in err and "Traceback" not in err
+
+
+def test_label_sigma_auto_starts_from_the_sigmas_the_applied_estimates_stored(scene_copy, tmp_path):
+    """Issue 28.3: ``--label-sigma auto`` gives each object the sigma of its own stored pose estimate (and the clock's
+    and hand-eye's when stored): the same numbers as those inputs given by hand; an object without a stored sigma
+    gets only the interpolation bound."""
+    from evpose.app.cli import main
+    from evpose.core.document.estimates import apply_clock_estimate, apply_pose_estimate
+    from evpose.core.document.history import History
+
+    with Scene.open(scene_copy) as scene:
+        names = scene.object_names
+        h = History(scene.corrections)
+        apply_pose_estimate(h, names[0], scene.corrections.object_delta(names[0]) @ np.diag([1, 1, 1, 1.0]),
+                            std_mm=1.5, std_deg=0.7)                        # same value: only its sigma stored
+        apply_clock_estimate(h, scene, scene.clock.offset_us + 1, None, offset_std_us=3000)
+        scene.save_corrections()
+    assert main(["export", str(scene_copy), "--format", "h5", "--out", str(tmp_path / "a"), "-q",
+                 "--label-sigma", "auto"]) == 0
+    with h5py.File(next((tmp_path / "a").rglob("*.h5")), "r") as f:
+        valid, index, got = f["windows"]["valid"][:], f["windows"]["index"][:], f["label_sigma"][:]
+    got, index = got[valid], index[valid]
+    with Scene.open(scene_copy) as scene:
+        from evpose.core.export.windows import build_windows
+
+        windows = {w.index: w for w in build_windows(scene.events, window_us=10_000)}
+        t = np.array([windows[int(i)].t_label_us for i in index], np.int64)
+        first = label_sigmas(scene, t, names[:1], InputSigmas(offset_us=3000, pose_mm=1.5, pose_deg=0.7))
+        other = label_sigmas(scene, t, names[1:2], InputSigmas(offset_us=3000))
+    assert np.allclose(got[:, 0, 0], first.sigma_t_mm[:, 0], rtol=1e-9, equal_nan=True)
+    assert np.allclose(got[:, 1, 0], other.sigma_t_mm[:, 0], rtol=1e-9, equal_nan=True)
+    assert np.nanmedian(got[:, 0, 0]) > np.nanmedian(got[:, 1, 0])

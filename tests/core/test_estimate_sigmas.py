@@ -1,0 +1,111 @@
+"""Issue 28.3: an applied estimate keeps its sigma in the document (``corrections.json``'s ``sigmas``), a hand edit
+of the value drops it (undo brings both back), and the labels' sigma of the app and of ``export --label-sigma auto``
+start from what is stored."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from evpose.core.data.geometry import T_from_rotvec
+from evpose.core.document.corrections import Corrections, CorrectionsError
+from evpose.core.document.estimates import apply_hand_eye_estimate, apply_pose_estimate
+from evpose.core.document.history import History
+
+
+def test_a_pose_estimate_keeps_its_sigma_and_a_hand_edit_drops_it():
+    doc = Corrections()
+    h = History(doc)
+    T = T_from_rotvec([0, 0, 0.01], [0.002, 0, 0])
+    apply_pose_estimate(h, "box", T, "refine box", std_mm=0.4, std_deg=0.2)
+    assert len(h) == 1 and doc.sigma("object:box") == {"mm": 0.4, "deg": 0.2}
+    apply_hand_eye_estimate(h, T, "hand-eye", std_mm=0.7, std_deg=float("inf"))     # an infinite sigma is no sigma
+    assert doc.sigma("hand_eye") == {"mm": 0.7}
+    h.set(("object", "box"), T @ T, text="move box")                              # by hand
+    assert len(h) == 3 and doc.sigma("object:box") is None and doc.sigma("hand_eye") == {"mm": 0.7}
+    h.undo()
+    assert doc.sigma("object:box") == {"mm": 0.4, "deg": 0.2} and np.allclose(doc.object_delta("box"), T)
+    h.set(("object", "box"), T, text="same value")                                 # no change: sigma kept
+    assert doc.sigma("object:box") == {"mm": 0.4, "deg": 0.2} and h.index == 2 and h.can_redo
+    h.set(("hand_eye",), np.eye(4), text="reset hand-eye")
+    assert doc.sigma("hand_eye") is None
+
+
+def test_sigmas_round_trip_and_a_document_without_them_is_written_as_before(tmp_path):
+    doc = Corrections()
+    assert "sigmas" not in doc.to_json() and "sigmas" not in doc.canonical()
+    h = History(doc)
+    apply_pose_estimate(h, "box", np.eye(4) @ T_from_rotvec([0, 0, 0.01], [0, 0, 0]), std_mm=0.5, std_deg=0.25)
+    back = Corrections.from_json(json.loads(json.dumps(doc.to_json())))
+    assert back.sigmas == {"object:box": {"mm": 0.5, "deg": 0.25}} and back.digest() == doc.digest()
+    assert Corrections.from_json(Corrections().to_json()).digest() == Corrections().digest()
+
+
+@pytest.mark.parametrize("sigmas, field", [
+    ({"object:": {"mm": 1}}, "sigmas.object:"),
+    ({"clock": {"mm": 1}}, "sigmas.clock.mm"),
+    ({"hand_eye": {"mm": -1}}, "sigmas.hand_eye.mm"),
+    ({"object:box": {"deg": "1"}}, "sigmas.object:box.deg"),
+    ({"object:box": {}}, "sigmas.object:box"),
+    ({"lens": {"mm": 1}}, "sigmas.lens"),
+])
+def test_a_bad_sigma_is_refused_naming_its_field(sigmas, field):
+    d = Corrections().to_json()
+    d["sigmas"] = sigmas
+    with pytest.raises(CorrectionsError) as e:
+        Corrections.from_json(d, source="x/corrections.json")
+    assert str(e.value).startswith(f"x/corrections.json: {field}"), str(e.value)
+
+
+def test_a_sigma_saved_meanwhile_by_another_program_is_merged(tmp_path):
+    from evpose.core.document.corrections_merge import merge
+
+    base = Corrections()
+    disk, local = base.copy(), base.copy()
+    apply_pose_estimate(History(disk), "box", T_from_rotvec([0, 0, 0.02], [0, 0, 0]), std_mm=0.3, std_deg=0.1)
+    History(local).set(("object", "can"), T_from_rotvec([0, 0.02, 0], [0, 0, 0]))
+    out = merge(base, local, disk)
+    assert out.doc.sigma("object:box") == {"mm": 0.3, "deg": 0.1} and "sigmas.object:box" in out.from_disk
+
+
+def test_stored_input_sigmas_say_what_is_missing():
+    from evpose.core.label.uncertainty import stored_input_sigmas
+
+    doc = Corrections()
+    h = History(doc)
+    apply_pose_estimate(h, "box", T_from_rotvec([0, 0, 0.02], [0, 0, 0]), std_mm=0.3, std_deg=0.1)
+    s, missing = stored_input_sigmas(doc, "box")
+    assert (s.pose_mm, s.pose_deg, s.offset_us) == (0.3, 0.1, 0.0) and missing == ["clock offset", "hand-eye"]
+    s, missing = stored_input_sigmas(doc, "can")
+    assert missing == ["clock offset", "object pose", "hand-eye"]
+
+
+def test_the_joint_fit_applied_stores_its_sigmas_and_auto_label_sigmas_use_them(scene_copy):
+    """Every part of an applied joint estimate carries its sigma into the document, and ``label_sigmas`` from the
+    stored sigmas (auto) equal those of the same inputs given by hand, object by object."""
+    from evpose.core.align.apply import apply_joint_result
+    from evpose.core.align.joint_fit import refine_joint
+    from evpose.core.align.joint_result import JointParams
+    from evpose.core.data.scene import Scene
+    from evpose.core.label.uncertainty import LabelSigmaOptions, label_sigmas, stored_input_sigmas
+
+    with Scene.open(scene_copy) as scene:
+        r = refine_joint(scene, params=JointParams(n_windows=12, skew="fixed"))
+        h = History(scene.corrections)
+        assert apply_joint_result(h, scene, r) and len(h) == 1
+        c = scene.corrections
+        assert c.sigma("clock") == {"offset_us": pytest.approx(r.offset_std_us)}
+        for n, o in r.objects.items():
+            if not np.array_equal(c.object_delta(n), np.eye(4)):
+                assert c.sigma(f"object:{n}") == {"mm": pytest.approx(o.std_mm), "deg": pytest.approx(o.std_deg)}
+        t = np.linspace(scene.events.t_first_us, scene.events.t_last_us, 7).astype(np.int64)[1:-1]
+        names = [n for n in scene.object_names if c.sigma(f"object:{n}")]
+        assert names
+        auto = LabelSigmaOptions(None).sigmas(scene, t, names)
+        for k, n in enumerate(names):
+            by_hand = label_sigmas(scene, t, [n], stored_input_sigmas(c, n)[0])
+            assert np.allclose(auto.sigma_t_mm[:, k], by_hand.sigma_t_mm[:, 0])
+            assert np.all(auto.sigma_t_mm[:, k][auto.valid] > 0)
+        h.undo()
+        assert c.sigmas == {}
