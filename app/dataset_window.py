@@ -21,6 +21,9 @@ window (with the dataset's shared defaults); File -> Back to dataset brings the 
   and what it keeps) with *Apply proposal* (:func:`~evpose.core.align.refine_run.apply_proposal`: one undo step,
   refused when the corrections changed since the proposal) and *Reject proposal* (nothing written).
 * *Export…* runs ``evpose dataset export`` on the cluster, with the same progress bar and Cancel.
+* The *Campaign fit* box beside the detail pane shows the groups' fit of ``evpose dataset refine --joint --shared …
+  --apply`` (``campaign_fit.json``, :mod:`~evpose.core.dataset.campaign_view`), read again with the rows and when
+  the dataset's folder changes.
 """
 from __future__ import annotations
 
@@ -32,9 +35,12 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from evpose.app.workers import Job
 from evpose.core.data.events import Cancelled
 from evpose.core.dataset.batch import BatchResult, failure_text
+from evpose.core.dataset.campaign import CAMPAIGN_FILENAME
+from evpose.core.dataset.campaign_view import campaign_lines
 from evpose.core.dataset.dataset import Dataset
 from evpose.core.dataset.tasks import TRIAGE_WINDOW_US
 from evpose.core.errors import InputError
+from evpose.widgets.campaign_panel import CampaignPanel
 from evpose.widgets.dataset_table import DatasetTable
 from evpose.widgets.scene_detail import SceneDetail
 
@@ -203,7 +209,12 @@ class DatasetWindow(QtWidgets.QMainWindow):
         dock = QtWidgets.QDockWidget("Details", self)
         dock.setObjectName("detail_dock")
         dock.setFeatures(QtWidgets.QDockWidget.NoDockWidgetFeatures)
-        dock.setWidget(self.detail)
+        self.campaign = CampaignPanel()             # beside the detail pane: the groups' campaign_fit.json
+        split = QtWidgets.QSplitter(QtCore.Qt.Horizontal)
+        split.addWidget(self.detail)
+        split.addWidget(self.campaign)
+        split.setSizes([740, 560])
+        dock.setWidget(split)
         self.detail.setMinimumHeight(6 * self.fontMetrics().height())
         self.addDockWidget(QtCore.Qt.BottomDockWidgetArea, dock)
         self.detail_dock = dock
@@ -213,7 +224,8 @@ class DatasetWindow(QtWidgets.QMainWindow):
         self.addAction(self.quit_action)
         self.statusBar().showMessage(f"{dataset.root} — double-click a scene to open it")
 
-        self.watcher = QtCore.QFileSystemWatcher([str(ref.path) for ref in dataset.scenes], self)
+        self._campaign_changed = False
+        self.watcher = QtCore.QFileSystemWatcher([str(ref.path) for ref in dataset.scenes] + [str(dataset.root)], self)
         self.watcher.directoryChanged.connect(self._folder_changed)
         self._refresh_timer = QtCore.QTimer(self, singleShot=True, interval=REFRESH_DEBOUNCE_MS)
         self._refresh_timer.timeout.connect(self._refresh_changed)
@@ -273,6 +285,7 @@ class DatasetWindow(QtWidgets.QMainWindow):
             self._requested[ref.name] = serial
             if names is None:
                 self.table.set_values(ref.name, {"status": "loading…"})
+        self.show_campaign()
         defaults = self.dataset.defaults or None
         rows = self._rows                   # keeps the signal's object alive while the job runs
 
@@ -289,6 +302,10 @@ class DatasetWindow(QtWidgets.QMainWindow):
             return len(refs)
 
         return self._start(Job(work))
+
+    def show_campaign(self) -> None:
+        """Read ``campaign_fit.json`` beside ``dataset.toml`` again into the Campaign fit box (small: read here)."""
+        self.campaign.show_lines(*campaign_lines(self.dataset.root), str(self.dataset.root / CAMPAIGN_FILENAME))
 
     def _row_ready(self, name: str, values: dict, serial: int) -> None:
         if serial < self._requested.get(name, 0):
@@ -313,6 +330,8 @@ class DatasetWindow(QtWidgets.QMainWindow):
     def _folder_changed(self, folder: str) -> None:
         ref = self._by_dir.get(str(Path(folder)))
         if ref is None:
+            self._campaign_changed = True             # the dataset's folder: campaign_fit.json may have changed
+            self._refresh_timer.start()
             return
         sig = _signature(ref.path / "corrections.json")
         if sig != self._seen.get(ref.name):
@@ -324,7 +343,10 @@ class DatasetWindow(QtWidgets.QMainWindow):
         names, self._pending_refresh = sorted(self._pending_refresh), set()
         if names:
             self.statusBar().showMessage(f"{', '.join(names)}: corrections changed on disk, row read again", 5000)
-            self.load_rows(names)
+            self.load_rows(names)                   # reads campaign_fit.json again too
+        elif self._campaign_changed:
+            self.show_campaign()
+        self._campaign_changed = False
 
     # ------------------------------------------------------------------ open a scene
     def open_row(self, name: str):

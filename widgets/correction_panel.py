@@ -219,6 +219,14 @@ class CorrectionPanel(QtWidgets.QWidget):
                                      "box centre moved and by how much it turned (about that centre); in "
                                      "brackets the components along the axes chosen above")
         v.addWidget(self.object_delta)
+        self.label_sigma = Readout("label σ here 000.00 mm, 00.000°, 000.0 px (no σ: clock offset, hand-eye)",
+                                   stretch=True)
+        self.label_sigma.setToolTip(
+            "The 1-sigma of this object's label in the current window (translation in mm and rotation in degrees "
+            "of T_cam_obj, and its contour in pixels: the band drawn about it), propagated from the sigmas the "
+            "applied estimates stored (clock, this object's pose, hand-eye) and the trajectory's interpolation; "
+            "an input without one counts as exact and is named. A hand edit of a value drops its sigma.")
+        v.addWidget(self.label_sigma)
         row = QtWidgets.QHBoxLayout()
         self.refine_button = QtWidgets.QPushButton("Refine from events")
         self.refine_button.setToolTip("Fit this object's pose to the event edges over several windows (clock and "
@@ -347,8 +355,11 @@ class CorrectionPanel(QtWidgets.QWidget):
     def _on_session(self, change: Change) -> None:
         if change.kind in ("document", "objects"):
             self.refresh()
-        elif change.kind == "time" and self.current_frame() == "camera":
-            self._refresh_object()          # camera axes turn with the camera
+        elif change.kind == "time":
+            if self.current_frame() == "camera":
+                self._refresh_object()      # camera axes turn with the camera
+            else:
+                self._refresh_sigma()       # the label's sigma follows the camera's motion
 
     def refresh(self) -> None:
         self._updating = True
@@ -375,6 +386,26 @@ class CorrectionPanel(QtWidgets.QWidget):
     def _refresh_object(self) -> None:
         name = self.current_object()
         self.object_delta.setText(self.pose_readout(name) if name else "")
+        self._refresh_sigma()
+
+    def _refresh_sigma(self) -> None:
+        name = self.current_object()
+        self.label_sigma.setText(self.sigma_readout(name) if name else "")
+
+    def sigma_readout(self, name: str) -> str:
+        """Object ``name``'s label sigma in the current window (:meth:`Session.label_sigma
+        <evpose.core.session.model.Session.label_sigma>`), with the inputs it lacks."""
+        try:
+            s = self.session.label_sigma(name)
+        except InputError as exc:
+            return f"label σ: {exc}"
+        if s is None:
+            return "label σ: none stored (apply an estimate: Auto, Refine, evpose refine --apply)"
+        if not np.isfinite(s["t_mm"]):
+            return "label σ: no label in this window"
+        px = "" if not np.isfinite(s["px"]) else f", {s['px']:.1f} px"
+        return (f"label σ here {s['t_mm']:.2f} mm, {s['deg']:.3f}°{px}"
+                + (f" (no σ: {', '.join(s['missing'])})" if s["missing"] else ""))
 
     def pose_readout(self, name: str) -> str:
         """The correction of object ``name`` in the chosen axes: displacement of its box centre (mm) and

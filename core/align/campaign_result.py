@@ -58,6 +58,8 @@ class CampaignResult:
     notes: list = field(default_factory=list)
     trace: list = field(default_factory=list)
     runtime_s: float = 0.0
+    #: the kernel width the standard errors were computed at (:func:`~evpose.core.align.campaign_fit.fit_campaign`)
+    covariance_sigma_px: float = math.nan
 
     def to_json(self) -> dict:
         return {"scenes": list(self.scenes), "accepted": bool(self.accepted), "reason": self.reason,
@@ -66,7 +68,7 @@ class CampaignResult:
                 "placements": {u: {nm: f.to_json() for nm, f in objs.items()} for u, objs in self.placements.items()},
                 "objective_before": {n: json_number(v) for n, v in self.objective_before.items()},
                 "objective_after": {n: json_number(v) for n, v in self.objective_after.items()},
-                "steps": len(self.trace),
+                "steps": len(self.trace), "covariance_sigma_px": json_number(self.covariance_sigma_px),
                 "runtime_s": float(self.runtime_s), "trace": list(self.trace)}
 
 

@@ -180,15 +180,14 @@ def record_campaign(dataset, result, batch) -> Path:
     errors, and which scenes stored them (revision of their corrections)."""
     from evpose.core.data.atomic import write_atomic
 
+    from evpose.core.dataset.campaign_view import CampaignRecordError, read_record
+
     path = Path(dataset.root) / CAMPAIGN_FILENAME
-    if path.exists() or path.is_symlink():
-        try:
-            ours = json.loads(path.read_text(encoding="utf-8")).get("format") == CAMPAIGN_FORMAT
-        except (OSError, ValueError, AttributeError):
-            ours = False
-        if not ours:
-            raise DatasetError(f"{path}: exists and is not an evpose campaign fit ({CAMPAIGN_FORMAT}); "
-                               "move it away to record the fit")
+    try:
+        read_record(dataset.root)             # a FIFO, a huge file, another program's JSON: refused, never read whole
+    except CampaignRecordError as exc:
+        raise DatasetError(f"{exc}; it is not a campaign fit evpose recorded: move it away to record the fit") \
+            from None
     doc = {"format": CAMPAIGN_FORMAT, "dataset": dataset.name,
            "groups": [{"name": g.name, "shared": list(g.shared), "scenes": list(g.scenes)} for g in dataset.groups],
            "fit": result.to_json(),

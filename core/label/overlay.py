@@ -38,6 +38,9 @@ class ObjectOverlay:
     box_segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))  # (M, 2 points, uv)
     axes: list[np.ndarray] = field(default_factory=list)  # 3 polylines (x, y, z), NaN-free segments
     center_uv: np.ndarray | None = None
+    #: the label's 1-sigma on the image (px, RMS over its box corners) from the sigmas the applied estimates stored
+    #: (:func:`evpose.core.label.uncertainty.stored_label_sigmas`); None: the document stores none
+    sigma_px: float | None = None
 
 
 def mask_contours(mask: np.ndarray, min_points: int = 3) -> list[np.ndarray]:

@@ -211,6 +211,20 @@ class Session:
         self.end_drag()
         self.history.set(("skew_ppm",), float(skew_ppm), text="change clock skew", mergeable=mergeable)
 
+    def label_sigma(self, name: str) -> dict | None:
+        """The label sigma of object ``name`` at the current window (``t_mm``, ``deg``, ``px``: NaN where the window
+        has no label) from the sigmas the applied estimates stored, with ``missing``: the inputs without one
+        (:func:`evpose.core.label.uncertainty.stored_input_sigmas`); None when the document stores no sigma."""
+        from evpose.core.label.uncertainty import label_sigmas, stored_input_sigmas
+
+        c = self.scene.corrections
+        if not c.sigmas or not self.scene.has_poses:
+            return None
+        inputs, missing = stored_input_sigmas(c, name)
+        s = label_sigmas(self.scene, np.array([self.view.window().t_label_us], np.int64), [name], inputs)
+        return {"t_mm": float(s.sigma_t_mm[0, 0]), "deg": float(s.sigma_R_deg[0, 0]), "px": float(s.sigma_px[0, 0]),
+                "missing": missing}
+
     def current_T_base_cam(self) -> np.ndarray | None:
         """The camera pose at the view time, or None when the trajectory has none there (before or after it, or in
         a hole): then there are no camera axes to nudge along or read in."""
@@ -316,12 +330,13 @@ class Session:
         (:func:`evpose.core.document.estimates.apply_clock_estimate`)."""
         apply_clock_estimate(self.history, self.scene, offset_us, skew_ppm, text, offset_std_us, skew_std_ppm)
 
-    def apply_pose_estimate(self, name: str, dT_base, text: str | None = None) -> None:
+    def apply_pose_estimate(self, name: str, dT_base, text: str | None = None, std_mm: float | None = None,
+                            std_deg: float | None = None) -> None:
         """Make an accepted pose estimate ``dT_base`` (4x4, base frame) the correction of object
-        ``name``, one undo step."""
+        ``name`` with its standard errors (mm of its centre, degrees), one undo step."""
         if name not in self.object_names:
             raise KeyError(name)
-        apply_pose_estimate(self.history, name, dT_base, text)
+        apply_pose_estimate(self.history, name, dT_base, text, std_mm, std_deg)
 
     def apply_joint_estimate(self, result, text: str = "clock and poses from edges", *, clock: bool = True,
                              poses: bool = True) -> bool:

@@ -170,6 +170,7 @@ class FrameComputer(WindowReader):
         yield None
         overlays, mask_rgba, inside = [], None, None
         names = scene.object_names
+        sigma_px = _label_sigma_px(scene, w.t_label_us, names) if labels.valid else None
         if labels.valid:
             shown = [n not in view.hidden for n in names]
             if "mask" in view.overlays:
@@ -179,6 +180,8 @@ class FrameComputer(WindowReader):
                 if not shown[k]:
                     continue
                 ov = ObjectOverlay(o.name, object_color(k))
+                if sigma_px is not None and np.isfinite(sigma_px[k]):
+                    ov.sigma_px = float(sigma_px[k])
                 if o.in_view:
                     if "contour" in view.overlays:
                         ov.contours = mask_contours(o.mask_visible)
@@ -246,6 +249,16 @@ class FrameComputer(WindowReader):
             ev = ev[::int(np.ceil(len(ev) / p.max_events))]
         res = score_window(ev, labels.label_map, labels.depth_m, len(names), p)
         return {n: (float(r.score) if r.valid else None) for n, r in zip(names, res)}
+
+def _label_sigma_px(scene: Scene, t_label_us: int, names) -> np.ndarray | None:
+    """Each object's label sigma on the image at ``t_label_us`` (px) from the document's stored sigmas; None when
+    it stores none (no estimate with a sigma applied: nothing to show)."""
+    if not scene.corrections.sigmas:
+        return None
+    from evpose.core.label.uncertainty import stored_label_sigmas
+
+    return stored_label_sigmas(scene, np.array([t_label_us], np.int64), names).sigma_px[0]
+
 
 def inside_fraction(ev: EventArray, label_map: np.ndarray, dilate_px: int = 2) -> float | None:
     """Share of the events that fall on any object's mask dilated by ``dilate_px`` pixels

@@ -58,6 +58,20 @@ OVERLAY_DISPLAY_FIELDS = frozenset({"mask_alpha", "selected_only", "outline_only
 DISPLAY_ONLY_FIELDS = frozenset({"contrast", "event_opacity", "mask_alpha", "selected_only", "outline_only"})
 
 
+
+#: Opacity (0-255) of the band of a label's sigma about its contour.
+SIGMA_BAND_ALPHA = 70
+
+
+def sigma_band_pen(color, sigma_px: float) -> QtGui.QPen:
+    """A pen ``2 sigma_px`` wide in image pixels (not screen pixels: it scales with the zoom), translucent, with
+    round ends: the contour drawn with it covers the label's +-1 sigma about the contour."""
+    pen = pg.mkPen((*color[:3], SIGMA_BAND_ALPHA), width=2.0 * float(sigma_px))
+    pen.setCosmetic(False)
+    pen.setCapStyle(QtCore.Qt.RoundCap)
+    pen.setJoinStyle(QtCore.Qt.RoundJoin)
+    return pen
+
 class FrameView(QtWidgets.QWidget):
     """Shows :class:`~evpose.core.views.frame.FrameData`; reports hover information.
 
@@ -164,9 +178,12 @@ class FrameView(QtWidgets.QWidget):
         items = {
             "contour": pg.PlotCurveItem(pen=pg.mkPen(color, width=2), connect="finite"),
             "box": pg.PlotCurveItem(pen=pg.mkPen(color, width=1.5), connect="pairs"),
+            # the label's +-1 sigma about the contour (image pixels: it widens as you zoom in)
+            "band": pg.PlotCurveItem(pen=sigma_band_pen(color, 1.0), connect="finite"),
         }
         items["contour"].setZValue(3)
         items["box"].setZValue(2)
+        items["band"].setZValue(2.5)
         for it in items.values():
             self.vb.addItem(it)
         self._items[name] = items
@@ -251,6 +268,10 @@ class FrameView(QtWidgets.QWidget):
             if not contours and v.outline_only and f.labels.label_map is not None:
                 contours = mask_contours(f.labels.label_map == k)     # outlines even with contours off
             items["contour"].setData(*polylines_xy(contours))
+            band = ov.sigma_px is not None and ov.sigma_px > 0 and bool(contours) and not v.outline_only
+            items["band"].setData(*(polylines_xy(contours) if band else ([], [])))
+            if band:
+                items["band"].setPen(sigma_band_pen(ov.color, ov.sigma_px))
             items["box"].setData(*segments_xy(ov.box_segments if full else np.zeros((0, 2, 2))))
             for a in range(3):
                 if full and len(ov.axes) == 3 and len(ov.axes[a]):
