@@ -63,7 +63,7 @@ def ensure_campaign(family: str, seed: int) -> Path:
             from evpose.core.sim_validation.assemble import generate
             from evpose.core.sim_validation.config import ValidationConfig
 
-            generate(folder, ValidationConfig(objects=("sugar_box", "mustard_bottle", "tomato_soup_can"),
+            generate(folder, ValidationConfig(objects=("sugar_box", "mustard_bottle", "potted_meat_can"),
                                               trajectory="B", speed_mps=speed, duration_s=3.0, seed=seed,
                                               pose_error_mm=3.0, pose_error_deg=1.5, hand_eye_error_mm=2.0,
                                               hand_eye_error_deg=0.5, offset_us=int(1000 * (seed % 7))),

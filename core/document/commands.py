@@ -76,11 +76,18 @@ class SetValue(Command):
 
 
 class Group(Command):
-    """Several commands as one undo step (redo in order, undo in reverse)."""
+    """Several commands as one undo step (redo in order, undo in reverse). With a ``merge_key``, a
+    :class:`SetValue` of that key pushed right after merges into the group's first command (a drag that dropped
+    an estimate's sigma with its first move stays one undo step)."""
 
-    def __init__(self, text: str, commands: list[Command] | None = None):
+    def __init__(self, text: str, commands: list[Command] | None = None, merge_key=None):
         self.text = text
         self.commands: list[Command] = list(commands or [])
+        self.merge_key = merge_key
+
+    def merge(self, other: Command) -> bool:
+        return self.merge_key is not None and bool(self.commands) and self.commands[0].merge_key == self.merge_key \
+            and self.commands[0].merge(other)
 
     def redo(self, doc: Corrections) -> None:
         for c in self.commands:

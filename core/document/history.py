@@ -174,9 +174,9 @@ class History:
         if part is None or self.doc.sigma(part) is None or _same(self.doc.get(key), new):
             self.push(set_command(self.doc, key, new, text=text, mergeable=mergeable))
             return
-        with self.group(text or f"set {key[0]}"):
-            self.push(set_command(self.doc, key, new, text=text))
-            self.push(set_command(self.doc, ("sigma", part), None, text=text))
+        value = set_command(self.doc, key, new, text=text, mergeable=mergeable)
+        grp = Group(value.text, [value, set_command(self.doc, ("sigma", part), None, text=text)], value.merge_key)
+        self.push(grp)
 
     @contextlib.contextmanager
     def group(self, text: str):

@@ -109,3 +109,18 @@ def test_the_joint_fit_applied_stores_its_sigmas_and_auto_label_sigmas_use_them(
             assert np.all(auto.sigma_t_mm[:, k][auto.valid] > 0)
         h.undo()
         assert c.sigmas == {}
+
+
+def test_a_drag_that_drops_a_sigma_is_still_one_undo_step():
+    """A drag's moves merge into one undo step; its first move also drops the estimate's sigma -- in that step."""
+    doc = Corrections()
+    h = History(doc, clock=lambda: 0.0)
+    T = T_from_rotvec([0, 0, 0.01], [0.002, 0, 0])
+    apply_pose_estimate(h, "box", T, std_mm=0.4, std_deg=0.2)
+    for dx in (0.001, 0.002, 0.003):
+        h.set(("object", "box"), T_from_rotvec([0, 0, 0.01], [0.002 + dx, 0, 0]), text="drag box", mergeable=True)
+    assert len(h) == 2 and doc.sigma("object:box") is None and np.isclose(doc.object_delta("box")[0, 3], 0.005)
+    h.undo()
+    assert doc.sigma("object:box") == {"mm": 0.4, "deg": 0.2} and np.allclose(doc.object_delta("box"), T)
+    h.redo()
+    assert doc.sigma("object:box") is None and np.isclose(doc.object_delta("box")[0, 3], 0.005)
