@@ -125,9 +125,9 @@ def refine_values(doc: dict) -> dict:
     """Table values of one dry-run ``evpose refine --joint --json`` document: ``proposal`` (the changes with their
     sigma, or why nothing would change), ``proposal_state`` ("proposed" or "none") and the document itself
     (``proposal_doc``, what Apply stores)."""
-    changes = doc.get("changes") or []
-    if changes:
-        return {"proposal": "; ".join(c["text"] for c in changes), "proposal_state": "proposed", "proposal_doc": doc}
+    values = [c for c in doc.get("changes") or [] if c["part"] != "sigma"]   # not the confirmed parts' sigma
+    if values:
+        return {"proposal": "; ".join(c["text"] for c in values), "proposal_state": "proposed", "proposal_doc": doc}
     text = "no change (within sigma)" if doc.get("accepted") else f"start kept: {doc.get('reason') or 'not accepted'}"
     return {"proposal": text, "proposal_state": "none", "proposal_doc": doc}
 

@@ -157,7 +157,12 @@ def cmd_refine(args) -> int:
 def _verdict(d) -> str:
     if not d.get("accepted"):
         return "kept start"
-    return ("applied" if d.get("applied") else "would apply") if d.get("changes") else "no change"
+    changes = d.get("changes") or []
+    if not changes:
+        return "no change"
+    if all(c["part"] == "sigma" for c in changes):       # values confirmed: only their sigma stored
+        return "sigma stored" if d.get("applied") else "would store sigma"
+    return "applied" if d.get("applied") else "would apply"
 
 
 def _shared_kinds(text: str) -> set:

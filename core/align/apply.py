@@ -131,6 +131,10 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
             changes.append(PlannedChange("clock", "", text, vals, store_clock))
         else:
             kept.append(f"clock: within {APPLY_SIGMAS:g} sigma of the clock in effect")
+            changes += _kept_sigma(scene, "clock", "clock",
+                                   offset_us=(result.offset_us - scene.clock.offset_us, result.offset_std_us),
+                                   skew_ppm=(result.skew_ppm - scene.clock.skew_ppm, result.skew_std_ppm)
+                                   if result.skew_estimated else (0.0, None))
     if not poses:
         return changes, kept
     for name, o in result.objects.items():
@@ -142,6 +146,7 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
                 {"dt_mm": o.dt_mm, "std_mm": o.std_mm, "dR_deg": o.dR_deg, "std_deg": o.std_deg}, store_pose))
         else:
             kept.append(f"{name}: its change ({o.dt_mm:.2f} mm, {o.dR_deg:.2f} deg) is within {APPLY_SIGMAS:g} sigma")
+            changes += _kept_sigma(scene, f"object:{name}", name, mm=(o.dt_mm, o.std_mm), deg=(o.dR_deg, o.std_deg))
     if p.hand_eye and result.hand_eye_dT_cam is not None:
         r = result
         if _beyond(r.hand_eye_dt_mm, r.hand_eye_std_mm) or _beyond(r.hand_eye_dR_deg, r.hand_eye_std_deg):
@@ -154,7 +159,35 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
                  "std_deg": r.hand_eye_std_deg}, store_hand_eye))
         else:
             kept.append(f"hand-eye: its change is within {APPLY_SIGMAS:g} sigma")
+            changes += _kept_sigma(scene, "hand_eye", "hand-eye", mm=(r.hand_eye_dt_mm, r.hand_eye_std_mm),
+                                   deg=(r.hand_eye_dR_deg, r.hand_eye_std_deg))
     return changes, kept
+
+
+#: Units of each sigma field in a kept part's line.
+_SIGMA_UNITS = {"offset_us": ("ms", 1e-3, 3), "skew_ppm": ("ppm", 1.0, 1), "mm": ("mm", 1.0, 2), "deg": ("deg", 1.0, 3)}
+
+
+def _kept_sigma(scene, part: str, label: str, **pairs) -> list:
+    """A part an estimate confirms (within :data:`APPLY_SIGMAS` of what is in effect): its value is kept, and when
+    the document stores no sigma for it yet, how far the value in effect may be off -- the estimate's standard error
+    and its distance from that value in quadrature -- is stored beside it (where the label sigma starts from;
+    :attr:`~evpose.core.document.corrections.Corrections.sigmas`). ``pairs``: field -> (distance, standard error).
+    A list of zero or one :class:`PlannedChange` (part ``"sigma"``, name the document's part)."""
+    if scene.corrections.sigma(part) is not None:
+        return []
+    sigma = {k: math.hypot(float(d), float(s)) for k, (d, s) in pairs.items()
+             if s is not None and math.isfinite(s) and s > 0 and math.isfinite(d)}
+    if not sigma:
+        return []
+    shown = ", ".join(f"{v * _SIGMA_UNITS[k][1]:.{_SIGMA_UNITS[k][2]}f} {_SIGMA_UNITS[k][0]}" for k, v in sigma.items())
+
+    def store(history, text_):
+        history.set(("sigma", part), sigma, text=text_)
+    values = {"sigma": sigma, "offset_std_us": sigma.get("offset_us"), "std_mm": sigma.get("mm"),
+              "std_deg": sigma.get("deg")}
+    return [PlannedChange("sigma", part, f"{label}: kept; its sigma stored (+- {shown})",
+                          {k: v for k, v in values.items() if v is not None}, store)]
 
 
 def apply_joint_result(history, scene, result, text: str = "refine clock and poses from edges", *,
@@ -182,12 +215,14 @@ def store_changes(history, changes: list, text: str) -> bool:
 
 def plan_sync(scene, result: SyncResult) -> list:
     """What :func:`apply_sync` would store of a rate estimate: the clock when reliable and beyond
-    :data:`APPLY_SIGMAS` of its standard errors from the clock in effect (empty list otherwise)."""
+    :data:`APPLY_SIGMAS` of its standard errors from the clock in effect; within them, its sigma when the document
+    has none for the clock (:func:`_kept_sigma`); an empty list otherwise."""
     if result.offset_us is None or not result.reliable:
         return []
     skew_std = getattr(result, "skew_std_ppm", None)
     if not clock_differs(scene, result.offset_us, result.skew_ppm, result.offset_std_us, skew_std):
-        return []
+        return _kept_sigma(scene, "clock", "clock", offset_us=(result.offset_us - scene.clock.offset_us,
+                                                               result.offset_std_us))
     text, vals = _clock_change(scene, result.offset_us, result.skew_ppm, result.offset_std_us, skew_std)
 
     def store(history, text_):

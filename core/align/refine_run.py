@@ -126,6 +126,8 @@ def apply_proposal(scene, doc: dict) -> str:
                 he = doc["hand_eye"]
                 apply_hand_eye_estimate(history, np.asarray(he["dT_cam"], np.float64), APPLY_TEXT, he.get("dt_std_mm"),
                                         he.get("dR_std_deg"))
+            elif c["part"] == "sigma":             # a part the estimate confirmed: its sigma beside the kept value
+                history.set(("sigma", c["name"]), c["sigma"], text=APPLY_TEXT)
             else:
                 raise ProposalError(f"{where}: changes: unknown part {c['part']!r}")
     out = dict(doc, applied=True)

@@ -4,6 +4,7 @@ start from what is stored."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -99,6 +100,9 @@ def test_the_joint_fit_applied_stores_its_sigmas_and_auto_label_sigmas_use_them(
         for n, o in r.objects.items():
             if not np.array_equal(c.object_delta(n), np.eye(4)):
                 assert c.sigma(f"object:{n}") == {"mm": pytest.approx(o.std_mm), "deg": pytest.approx(o.std_deg)}
+            else:            # confirmed (within 2 sigma): kept, with the estimate's sigma and its distance in quadrature
+                assert c.sigma(f"object:{n}") == {"mm": pytest.approx(math.hypot(o.dt_mm, o.std_mm)),
+                                                  "deg": pytest.approx(math.hypot(o.dR_deg, o.std_deg))}
         t = np.linspace(scene.events.t_first_us, scene.events.t_last_us, 7).astype(np.int64)[1:-1]
         names = [n for n in scene.object_names if c.sigma(f"object:{n}")]
         assert names

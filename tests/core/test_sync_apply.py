@@ -9,6 +9,7 @@ Checked in the core functions (:mod:`evpose.core.align.apply`) and through ``evp
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -96,11 +97,14 @@ def test_an_estimate_the_clock_in_effect_is_within_is_not_applied(scene_dir):
     with _Open(scene_dir) as scene:
         h = History(scene.corrections)
         near = PRIOR_OFFSET_US + int(APPLY_SIGMAS * 500) - 10
-        assert not apply_sync(h, scene, estimate(near, None, offset_std_us=500.0))
-        assert not apply_sync(h, scene, estimate(PRIOR_OFFSET_US - 900, None, offset_std_us=500.0))
+        # the clock is kept; the estimate's sigma (with its distance in quadrature) is stored beside it (issue 28.3)
+        assert apply_sync(h, scene, estimate(near, None, offset_std_us=500.0))
+        assert scene.corrections.offset_us == 0
+        assert scene.corrections.sigma("clock") == {"offset_us": pytest.approx(math.hypot(near - PRIOR_OFFSET_US, 500))}
+        assert not apply_sync(h, scene, estimate(PRIOR_OFFSET_US - 900, None, offset_std_us=500.0))   # has one now
         assert not apply_sync(h, scene, estimate(-73_200, None, offset_std_us=None))
         assert not apply_sync(h, scene, estimate(-73_200, None, offset_std_us=float("inf")))
-        assert scene.corrections.offset_us == 0 and len(h) == 0
+        assert scene.corrections.offset_us == 0 and len(h) == 1
         assert apply_sync(h, scene, estimate(PRIOR_OFFSET_US + int(APPLY_SIGMAS * 500) + 10, None, 500.0))
         assert scene.corrections.offset_us == int(APPLY_SIGMAS * 500) + 10
         # the skew alone, when estimated with its standard error, counts too
