@@ -180,7 +180,7 @@ def _shared_kinds(text: str) -> set:
 def _refine_campaign(args) -> int:
     """``dataset refine --joint --shared KINDS``: the groups' shared terms fitted together (one campaign fit)."""
     from evpose.core.align.joint_result import JointParams
-    from evpose.core.dataset.campaign import record_campaign, run_campaign
+    from evpose.core.dataset.campaign import check_record, record_campaign, run_campaign
 
     if args.only_flagged:
         raise CliError("--only-flagged and --shared: a campaign fit takes every scene of its groups")
@@ -188,6 +188,8 @@ def _refine_campaign(args) -> int:
     for kind in sorted(args.shared):
         if not any(kind in g.shared for g in ds.groups):
             raise CliError(f"{ds.root}: no [[groups]] in its dataset.toml shares {kind} (see --shared)")
+    if args.apply:
+        check_record(ds)                        # a foreign campaign_fit.json: refused before anything is stored
     params = JointParams(clock=not args.no_clock, skew="fixed", hand_eye=args.hand_eye or "hand-eye" in args.shared,
                          n_windows=args.windows)
     with _cluster(args) as client, Progress("dataset refine", not args.quiet) as progress:

@@ -24,7 +24,8 @@ from evpose.core.align.campaign_fit import CampaignScene, fit_campaign
 from evpose.core.dataset.dataset import SHARED_KINDS, DatasetError
 
 __all__ = ["CAMPAIGN_FILENAME", "CAMPAIGN_FORMAT", "CAMPAIGN_TEXT", "MAX_CACHED_SCENES", "DaskEvaluator",
-           "campaign_scenes", "run_campaign", "record_campaign", "campaign_info_task", "campaign_eval_task",
+           "campaign_scenes", "run_campaign", "check_record", "record_campaign", "campaign_info_task",
+           "campaign_eval_task",
            "campaign_scene_task"]
 
 CAMPAIGN_FILENAME = "campaign_fit.json"
@@ -174,20 +175,26 @@ def run_campaign(client, dataset, shared: set, params, *, apply: bool = False, p
     return result, batch.ordered([ref.name for ref in dataset.scenes])
 
 
+def check_record(dataset) -> Path:
+    """The path of the dataset's ``campaign_fit.json``, refused (:class:`DatasetError`) when a file there is not one
+    evpose recorded -- checked before a campaign is applied, so nothing is stored that could not be recorded."""
+    from evpose.core.dataset.campaign_view import CampaignRecordError, read_record
+
+    try:
+        read_record(dataset.root)             # a FIFO, a huge file, another program's JSON: refused, never read whole
+    except CampaignRecordError as exc:
+        raise DatasetError(f"{exc}; it is not a campaign fit evpose recorded: move it away to record the fit") \
+            from None
+    return Path(dataset.root) / CAMPAIGN_FILENAME
+
+
 def record_campaign(dataset, result, batch) -> Path:
     """Write the group fit to ``campaign_fit.json`` beside the dataset's ``dataset.toml`` (atomic; a file of that
     name that evpose did not write is refused, never replaced): the groups' shared terms with their standard
     errors, and which scenes stored them (revision of their corrections)."""
     from evpose.core.data.atomic import write_atomic
 
-    from evpose.core.dataset.campaign_view import CampaignRecordError, read_record
-
-    path = Path(dataset.root) / CAMPAIGN_FILENAME
-    try:
-        read_record(dataset.root)             # a FIFO, a huge file, another program's JSON: refused, never read whole
-    except CampaignRecordError as exc:
-        raise DatasetError(f"{exc}; it is not a campaign fit evpose recorded: move it away to record the fit") \
-            from None
+    path = check_record(dataset)
     doc = {"format": CAMPAIGN_FORMAT, "dataset": dataset.name,
            "groups": [{"name": g.name, "shared": list(g.shared), "scenes": list(g.scenes)} for g in dataset.groups],
            "fit": result.to_json(),

@@ -366,6 +366,10 @@ def test_a_campaign_record_evpose_did_not_write_is_never_replaced(campaign, tmp_
     shutil.copytree(campaign, root)
     foreign = root / "campaign_fit.json"
     foreign.write_text('{"mine": true}\n')
+    before = _files(root)
+    r = _evpose("dataset", "refine", root, "--joint", "--shared", "placement", "--apply", "--workers", "1", "-q")
+    assert r.returncode == 2 and "not a campaign fit evpose recorded" in r.stderr, r.stderr
+    assert _files(root) == before                    # refused before anything was stored
     ds = Dataset.open(root)
     with pytest.raises(DatasetError, match="not a campaign fit evpose recorded"):
         record_campaign(ds, CampaignResult(_params(), list(SPEEDS)), BatchResult(ds.name))
