@@ -2,10 +2,13 @@
 
 Per scene of the frozen validation family (``bench/validation_family.json``: the independent ray-casting generator,
 never tuned on), as a user would run it: ``evpose sync --edges`` (the event-rate stage, then the joint fit of clock
-and object poses from edges with its mounting check), its estimates applied; every 10 ms window labelled with them and
+and object poses from edges with its mounting check), its estimates stored as the app's Accept and ``evpose refine
+--joint --apply`` store them (:func:`evpose.core.align.apply.plan_joint_result`: each part beyond 2 sigma of what is
+in effect with its sigma; a confirmed part kept, with its sigma and distance in quadrature; the mounting check's
+hand-eye change and sigma in quadrature when it kept the mounting); every 10 ms window labelled with them and
 compared with the labels of the scene's ground truth (true clock, true object poses, true hand-eye, the same trajectory
-samples). The predicted sigma is :func:`evpose.core.label.uncertainty.label_sigmas` from the estimates' own sigma
-(joint clock offset and skew, each object's pose; the hand-eye's when the mounting check found one) plus the
+samples). The predicted sigma is what ``export --label-sigma auto`` writes: :func:`evpose.core.label.uncertainty.
+label_sigmas` from the document's stored sigmas (:func:`~evpose.core.label.uncertainty.stored_input_sigmas`) plus the
 trajectory's interpolation bound -- which the simulated truth does not contain (it interpolates the same samples),
 so the check is conservative there.
 
@@ -41,7 +44,9 @@ def evaluate(folder: Path) -> dict:
     from evpose.core.data.scene import Scene
     from evpose.core.export.windows import build_windows
     from evpose.core.label.labels import label_poses
-    from evpose.core.label.uncertainty import InputSigmas, label_sigmas
+    from evpose.core.align.apply import plan_joint_result, store_changes
+    from evpose.core.document.history import History
+    from evpose.core.label.uncertainty import label_sigmas, stored_input_sigmas
     from evpose.core.sim.synth import load_ground_truth
 
     gt = load_ground_truth(folder)
@@ -64,35 +69,30 @@ def evaluate(folder: Path) -> dict:
         if "hand_eye" in gt:
             c.hand_eye_delta = np.asarray(gt["hand_eye"]["dT_cam"])
         T_true, _, v_true = label_poses(scene, t, names)
-        # the estimates, applied as `evpose sync --edges --apply` would
+        # the estimates applied as the app's Accept and `evpose refine --joint --apply` store them: each part beyond
+        # 2 sigma of what is in effect with its sigma, a confirmed part kept with its sigma, the mounting check's
+        # hand-eye sigma when it kept the mounting (the document's "sigmas"; nothing is saved)
+        c.offset_us, c.skew_ppm = 0, 0.0
         c.object_deltas.clear()
         c.hand_eye_delta = np.eye(4)
+        c.sigmas.clear()
         accepted = edges is not None and edges.accepted
         row["accepted"] = bool(accepted)
         if not accepted:
             return row
-        c.offset_us = int(edges.offset_us - m.clock_offset_us)
-        c.skew_ppm = float(edges.skew_ppm - m.clock_skew_ppm)
-        skew_std = edges.skew_std_ppm if edges.skew_estimated else (edges.skew_std_ppm or 0.0)
-        he = edges.params.hand_eye and edges.hand_eye_dT_cam is not None
-        if he:
-            c.hand_eye_delta = np.asarray(edges.hand_eye_dT_cam)
-        for n, o in edges.objects.items():
-            c.object_deltas[n] = o.dT_base
+        changes, _ = plan_joint_result(scene, edges)
+        store_changes(History(c), changes, "label coverage")
+        row["stored_sigmas"] = sorted(c.sigmas)
         T_est, _, v_est = label_poses(scene, t, names)
         ok = v_true & v_est
         ratios_t, ratios_r, pairs = [], [], []
         held = []
         for k, n in enumerate(names):
-            o = edges.objects.get(n)
-            if o is None:             # held at its start: no pose sigma, so no label sigma to check
+            sig, missing = stored_input_sigmas(c, n)
+            if "object pose" in missing:      # held at its start: no pose sigma, so no label sigma to check
                 held.append(n)
                 continue
-            sig = InputSigmas(offset_us=float(edges.offset_std_us or 0.0), skew_ppm=float(skew_std or 0.0),
-                              pose_mm=float(o.std_mm), pose_deg=float(o.std_deg),
-                              hand_eye_mm=float(edges.hand_eye_std_mm or 0.0) if he else 0.0,
-                              hand_eye_deg=float(edges.hand_eye_std_deg or 0.0) if he else 0.0)
-            s = label_sigmas(scene, t, [n], sig)
+            s = label_sigmas(scene, t, [n], sig)           # = export --label-sigma auto
             err_m, _ = pose_error(T_est[:, k], T_true[:, k])
             err_mm = err_m * 1e3
             kind, axis = scene.model(n).symmetry

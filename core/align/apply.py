@@ -161,6 +161,10 @@ def plan_joint_result(scene, result, *, clock: bool = True, poses: bool = True) 
             kept.append(f"hand-eye: its change is within {APPLY_SIGMAS:g} sigma")
             changes += _kept_sigma(scene, "hand_eye", "hand-eye", mm=(r.hand_eye_dt_mm, r.hand_eye_std_mm),
                                    deg=(r.hand_eye_dR_deg, r.hand_eye_std_deg))
+    elif result.mounting_check is not None:       # the mounting kept: how far it may be off, as the check saw it
+        m = result.mounting_check
+        changes += _kept_sigma(scene, "hand_eye", "hand-eye (mounting check)", mm=(m["dt_mm"], m["dt_std_mm"]),
+                               deg=(m["dR_deg"], m["dR_std_deg"]))
     return changes, kept
 
 

@@ -123,6 +123,10 @@ class JointResult:
     #: Per fitted object, its alignment score's change on windows the fit did not use
     #: (:mod:`evpose.core.align.joint_check`): ``windows``, ``score_change`` and its ``score_change_std``.
     held_out: dict = field(default_factory=dict)
+    #: A clock-and-poses fit's camera-mounting check that did not take the hand-eye fit
+    #: (:func:`evpose.core.align.sync_run.mounting_check`): the hand-eye change it saw and its standard errors,
+    #: ``dt_mm``, ``dt_std_mm``, ``dR_deg``, ``dR_std_deg`` -- how far the mounting in effect may be off. None: no check.
+    mounting_check: dict | None = None
 
     def to_json(self) -> dict:
         """The result as the CLI prints it: clock at the top, then ``objects`` and ``hand_eye``."""
@@ -143,4 +147,6 @@ class JointResult:
              "notes": list(self.notes),
              "held_out": {n: {k: json_number(v) if isinstance(v, float) else v for k, v in c.items()}
                           for n, c in self.held_out.items()}}
+        if self.mounting_check is not None:
+            d["mounting_check"] = {k: json_number(v) for k, v in self.mounting_check.items()}
         return d

@@ -195,6 +195,9 @@ def mounting_check(res, alt, turns: bool = True):
                                 "looks exactly like every object shifted alike; only the mounting's rotation is judged"])
     seen = (f"{alt.hand_eye_dt_mm:.2f} +- {alt.hand_eye_std_mm or float('nan'):.2f} mm, "
             f"{alt.hand_eye_dR_deg:.3f} +- {alt.hand_eye_std_deg or float('nan'):.3f} deg")
+    if alt.accepted:          # kept with the fit that keeps the mounting: how far the mounting in effect may be off
+        res.mounting_check = {"dt_mm": alt.hand_eye_dt_mm, "dt_std_mm": alt.hand_eye_std_mm,
+                              "dR_deg": alt.hand_eye_dR_deg, "dR_std_deg": alt.hand_eye_std_deg}
     if alt.accepted and z > MOUNTING_SIGMAS and len(alt.objects) < MOUNTING_MIN_OBJECTS:
         res.notes.append(f"mounting check: a hand-eye change of {seen} would explain the events, but with "
                          f"{len(alt.objects)} object fitted a camera-mounting error and that object's pose error move "

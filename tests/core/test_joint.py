@@ -398,6 +398,31 @@ def test_mounting_check_takes_the_hand_eye_fit_only_when_significant():
     assert sync_run.mounting_check(first, alt, turns=False) is alt and "does not turn" in alt.notes[-1]
 
 
+def test_a_kept_mounting_carries_the_checks_sigma_into_the_document(wrong):
+    """Issue 28.3: when the mounting check keeps the mounting (nothing concluded, or no error seen), how far it may be
+    off -- the hand-eye change the check saw and its sigma in quadrature -- is stored as the hand-eye's sigma (the
+    label sigma's hand-eye input); a check that took the hand-eye fit stores that fit's own."""
+    from evpose.core.align import sync_run
+    from evpose.core.align.apply import plan_joint_result, store_changes
+
+    first, alt = _fake_result(n_obj=1), _fake_result(he=True, dt_mm=10.0, std_mm=0.5, dR_deg=0.3, std_deg=0.1,
+                                                     n_obj=sync_run.MOUNTING_MIN_OBJECTS - 1)
+    kept = sync_run.mounting_check(first, alt)
+    assert kept is first and kept.mounting_check == {"dt_mm": 10.0, "dt_std_mm": 0.5, "dR_deg": 0.3, "dR_std_deg": 0.1}
+    assert kept.to_json()["mounting_check"]["dt_mm"] == 10.0
+    with Scene.open(wrong) as scene:
+        kept.objects = {}
+        h = History(scene.corrections)
+        changes, _ = plan_joint_result(scene, kept, clock=False)
+        assert [c.part for c in changes] == ["sigma"] and store_changes(h, changes, "sync")
+        assert scene.corrections.sigma("hand_eye") == {"mm": pytest.approx(np.hypot(10.0, 0.5)),
+                                                       "deg": pytest.approx(np.hypot(0.3, 0.1))}
+        assert np.array_equal(scene.corrections.hand_eye_delta, np.eye(4))        # the mounting itself is kept
+        h.undo()
+    first, alt = _fake_result(), _fake_result(accepted=False, he=True, dt_mm=10.0)
+    assert sync_run.mounting_check(first, alt).mounting_check is None               # a refused check says nothing
+
+
 def test_how_far_the_camera_turns(mounted, tmp_path):
     """Trajectory B turns the camera to look at the objects; the same recording with every recorded orientation
     replaced by the first one does not turn."""
