@@ -169,8 +169,6 @@ def test_the_spin_of_a_solid_of_revolution_is_held(wrong):
     """Issue 23: the cylinder's spin about its own axis changes no silhouette, so the fit must not move it (before,
     it ended 3-10 sigma off with a small sigma); its rotation is reported without the spin, and the box, which has
     no continuous symmetry, holds nothing."""
-    from evpose.core.align.pose_refine import _pose_change
-
     gt = load_ground_truth(wrong)
     with Scene.open(wrong) as scene:
         res = joint_fit.refine_joint(scene, params=JointParams(n_windows=12, clock=False, sigmas_px=(1.5, 0.8, 0.45)),
