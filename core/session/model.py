@@ -471,9 +471,9 @@ class Session:
         field unless ``take_autosaved``); returns those conflicts."""
         target = offer.target(take_autosaved)
         doc = self.scene.corrections
-        with self.history.group("restore autosaved corrections"):
-            for key in doc.differing_keys(target):
-                self.history.set(key, target.get(key))
+        # the journal's values and sigmas as they are (History.set would drop a sigma whose value it changes)
+        self.history.push(Group("restore autosaved corrections",
+                                [SetValue(k, doc.get(k), target.get(k)) for k in doc.differing_keys(target)]))
         return offer.conflicts
 
     def discard_journal(self) -> None:

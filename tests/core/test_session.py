@@ -491,3 +491,25 @@ def test_stepping_windows_of_n_events_never_stalls_on_equal_timestamps(times, n)
         t = grid.step(t, -1)
         shown.append(grid.index_at(t))
         assert shown[-1] < shown[-2], shown                  # and back
+
+
+def test_a_journal_restores_the_sigmas_of_its_estimates(scene_copy):
+    """Issue 28.3: an applied estimate's value and its sigma come back together from the autosave journal (a value
+    set through History.set would have dropped the sigma the journal holds)."""
+    s = Session.open(scene_copy)
+    step = np.array([[1, 0, 0, 0.002], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    s.apply_pose_estimate("box", s.scene.corrections.object_delta("box") @ step, "refine box", std_mm=0.4,
+                          std_deg=0.2)
+    s.save()                                    # saved: the first estimate; the journal: a second, same sigma
+    s.apply_pose_estimate("box", s.scene.corrections.object_delta("box") @ step, "refine box", std_mm=0.4,
+                          std_deg=0.2)
+    expected = s.scene.corrections.canonical()
+    assert expected["sigmas"] == {"object:box": {"deg": 0.2, "mm": 0.4}}
+    s.write_journal()
+    s.close()
+    s2 = Session.open(scene_copy)
+    assert s2.restore_journal(s2.pending_journal()) == []
+    assert s2.scene.corrections.canonical() == expected and len(s2.history) == 1
+    s2.history.undo()
+    assert s2.scene.corrections.sigma("object:box") == {"mm": 0.4, "deg": 0.2}
+    s2.close()
