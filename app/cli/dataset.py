@@ -374,8 +374,9 @@ def add_dataset_parser(subparsers) -> None:
                                                            "and proposed anyway)")
     p.add_argument("--no-clock", action="store_true", help="keep each scene's clock")
     p.add_argument("--shared", type=_shared_kinds, metavar="KINDS", help="hand-eye,placement: fit the scenes of "
-                   "dataset.toml's [[groups]] together, sharing these terms (one campaign fit; each scene keeps its "
-                   "clock; --apply stores every scene's share as one undo step and records campaign_fit.json)")
+                   "dataset.toml's [[groups]] together, sharing these terms (one campaign fit of the grouped scenes; "
+                   "each scene's clock fitted on its own; --apply stores every scene's share as one undo step and "
+                   "records campaign_fit.json)")
     p.add_argument("--windows", type=int, default=24, help="event windows of each fit")
     p.add_argument("--only-flagged", metavar="REPORT.json", help="only the scenes that report (dataset report's JSON) "
                    "ranks for the clock, a pose, the mounting or low scores")

@@ -424,7 +424,8 @@ def fit_campaign(evaluator, scenes: list, params: JointParams = JointParams(hand
     infos = evaluator.infos()
     prob = _Problem(scenes, infos, params)
     state0, notes = _start(scenes, infos)
-    result = CampaignResult(params=params, scenes=[cs.name for cs in scenes], notes=notes)
+    result = CampaignResult(params=params, scenes=[cs.name for cs in scenes], notes=notes,
+                            planned_on={cs.name: infos[cs.name].digest for cs in scenes})
     sigmas = next(iter(infos.values())).sigmas_px if infos else ()
     if prob.n == 0 or not any(i.n_windows for i in infos.values()):
         result.reason = "nothing to fit: no scene has windows with camera motion and an object in view"

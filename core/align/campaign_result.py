@@ -60,6 +60,8 @@ class CampaignResult:
     runtime_s: float = 0.0
     #: the kernel width the standard errors were computed at (:func:`~evpose.core.align.campaign_fit.fit_campaign`)
     covariance_sigma_px: float = math.nan
+    #: per scene, the digest of the corrections the fit started from (its share is stored only on those)
+    planned_on: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {"scenes": list(self.scenes), "accepted": bool(self.accepted), "reason": self.reason,

@@ -57,6 +57,8 @@ class SceneInfo:
     held: dict
     sigmas_px: tuple
     n_windows: int
+    #: the corrections' digest when the scene was opened: what the campaign's share of it is planned against
+    digest: str = ""
 
 
 @dataclass
@@ -114,6 +116,7 @@ class SceneWork:
         self.names = list(scene.object_names)
         self.T_manifest = {n: scene.manifest.object(n).T_base_obj for n in self.names}
         self.T_start = {n: scene.T_base_obj(n) for n in self.names}
+        self._digest = scene.corrections.digest()
         windows = _choose(scene, p, clock, self.names, None)
         self.fit = None
         self.held = {}
@@ -137,19 +140,18 @@ class SceneWork:
         radius = {n: (float(edges[i].radius) if edges is not None else 0.05) for i, n in enumerate(self.names)}
         return SceneInfo(self.names, int(c.offset_us), float(c.skew_ppm), int(c.t_ref_us), self.T_start,
                          self.T_manifest, np.asarray(self.scene.corrections.hand_eye_delta, np.float64), centre,
-                         radius, dict(self.held), self.sigmas, self.n_windows)
+                         radius, dict(self.held), self.sigmas, self.n_windows, self._digest)
 
     def evaluate(self, req: SceneRequest) -> SceneTerms:
         """The scene's terms at ``req``'s state (fresh contours and association), or at ``req.delta`` from it."""
-        n = self.lay.n
         if self.fit is None:
-            return SceneTerms(0.0, req.beta, 0, np.zeros((n, n)), np.zeros(n), np.zeros((n, n)), np.full(n, np.inf))
+            return self._nothing(req.beta)
         if req.delta is None or self._kept is None or self._kept[0] != req.base:
             self._associate(req)
         base, d, J, rows, P, beta, theta0 = self._kept
-        sigma, lay, free = req.sigma_px, self.lay, self.lay.free.astype(np.float64)
+        n, sigma, lay, free = self.lay.n, req.sigma_px, self.lay, self.lay.free.astype(np.float64)
         if d is None:
-            return SceneTerms(0.0, beta, 0, np.zeros((n, n)), np.zeros(n), np.zeros((n, n)), np.full(n, np.inf))
+            return self._nothing(beta)
         delta = np.zeros(n) if req.delta is None else np.asarray(req.delta, np.float64) * free
         s = d.s.copy()
         for i, r in enumerate(rows):
@@ -168,6 +170,13 @@ class SceneWork:
             groups = d.win if self.fit.clusters is None else np.asarray(self.fit.clusters)[d.win]
             out.G = cluster_scores(J, rows, groups, dk, lay) * free
         return out
+
+    def _nothing(self, beta) -> SceneTerms:
+        """The terms of a scene without windows or without events near the edges: it says nothing (also no
+        curvature and no clusters for the standard errors)."""
+        n = self.lay.n
+        return SceneTerms(0.0, beta, 0, np.zeros((n, n)), np.zeros(n), np.zeros((n, n)), np.full(n, np.inf),
+                          np.zeros((n, n)), np.zeros((0, n)), None)
 
     def _associate(self, req: SceneRequest) -> None:
         """Contours and association at ``req``'s state, kept under ``req.base`` with their Jacobian, prior, beta,

@@ -101,14 +101,19 @@ def campaign_eval_task(path: str, defaults, params, token: str, request):
     return _work(path, defaults, params, token).evaluate(request)
 
 
-def campaign_scene_task(path: str, defaults, result, apply: bool) -> dict:
+def campaign_scene_task(path: str, defaults, result, apply: bool, planned_on: str | None = None) -> dict:
     """Scene ``path``'s share of the campaign (``result``: its :class:`~evpose.core.align.joint_result.JointResult`)
-    planned and, with ``apply``, stored as one undo step and saved: the ``dataset refine`` document of the scene."""
-    from evpose.core.align.refine_run import plan_and_store
+    planned and, with ``apply``, stored as one undo step and saved: the ``dataset refine`` document of the scene.
+    Refused (:class:`~evpose.core.align.refine_run.ProposalError`, the scene's failure) when its corrections are not
+    the ones the fit started from (``planned_on``: another program saved meanwhile), so no edit is overwritten."""
+    from evpose.core.align.refine_run import ProposalError, plan_and_store
     from evpose.core.data.json_values import plain
     from evpose.core.data.scene import Scene
 
     with Scene.open(path, defaults=defaults) as scene:
+        if planned_on is not None and scene.corrections.digest() != planned_on:
+            raise ProposalError(f"{scene.corrections_path}: planned_on: the corrections changed while the campaign "
+                                "was fitted; run it again")
         return plain(plan_and_store(scene, result, apply, CAMPAIGN_TEXT).data)
 
 
@@ -146,13 +151,17 @@ class DaskEvaluator:
 
 
 def run_campaign(client, dataset, shared: set, params, *, apply: bool = False, progress=None, cancel=None):
-    """The campaign fit of ``dataset`` (its ``[[groups]]`` for the kinds in ``shared``) on ``client``'s workers,
-    then every scene's share planned and, with ``apply``, stored. Returns ``(CampaignResult, BatchResult)``: the
+    """The campaign fit of ``dataset``'s scenes in its ``[[groups]]`` for the kinds in ``shared`` (the others are
+    left out) on ``client``'s workers, then every scene's share planned and, with ``apply``, stored. Returns ``(CampaignResult, BatchResult)``: the
     fit and each scene's ``dataset refine`` document (failed scenes with their one-line error)."""
     import uuid
 
     from evpose.core.dataset.batch import BatchResult, failure_text
 
+    grouped = [ref.name for ref in dataset.scenes if any(dataset.group_of(ref.name, k) for k in shared)]
+    if not grouped:
+        raise DatasetError(f"{dataset.root}: no scene is in a [[groups]] entry sharing {', '.join(sorted(shared))}")
+    dataset = dataset.only(grouped)       # a scene in no group is refined on its own (dataset refine without --shared)
     bad = [ref for ref in dataset.scenes if ref.error is not None]
     if bad:
         raise DatasetError(f"{bad[0].path}: {bad[0].error} (a campaign fit needs every scene of its groups)")
@@ -165,7 +174,7 @@ def run_campaign(client, dataset, shared: set, params, *, apply: bool = False, p
     batch = BatchResult(dataset.name)
     defaults = dataset.defaults or None
     futures = {ref.name: client.submit(campaign_scene_task, str(ref.path), defaults, result.per_scene[ref.name],
-                                       apply, pure=False) for ref in dataset.scenes}
+                                       apply, result.planned_on.get(ref.name), pure=False) for ref in dataset.scenes}
     for name, fut in futures.items():
         try:
             batch.scenes[name] = fut.result()

@@ -112,7 +112,6 @@ def merge(base: Corrections, local: Corrections, disk: Corrections, prefer: str 
     keys = [("offset_us",), ("skew_ppm",), ("hand_eye",)]
     keys += [("object", n) for n in sorted(set(base.object_deltas) | set(local.object_deltas)
                                             | set(disk.object_deltas))]
-    keys += [("sigma", p) for p in sorted(set(base.sigmas) | set(local.sigmas) | set(disk.sigmas))]
     for key in keys:
         b, l, d = base.get(key), local.get(key), disk.get(key)
         if _same(key, d, b) or _same(key, l, d):
@@ -124,6 +123,8 @@ def merge(base: Corrections, local: Corrections, disk: Corrections, prefer: str 
                 conflicts.append(Conflict(field_name(key), _show(key, l), _show(key, d)))
             continue
         conflicts.append(Conflict(field_name(key), _show(key, l), _show(key, d)))
+    for part in sorted(set(base.sigmas) | set(local.sigmas) | set(disk.sigmas)):
+        _merge_sigma(part, base, local, disk, out, from_disk, conflicts, prefer)
     reviews, review_conflicts, taken = _merge_reviews(base.reviews, local.reviews, disk.reviews, prefer)
     conflicts += review_conflicts
     if taken:
@@ -136,6 +137,43 @@ def merge(base: Corrections, local: Corrections, disk: Corrections, prefer: str 
             f"{source}: {c.field}: changed here to {c.local} but another program saved {c.disk} "
             f"since this copy was loaded{more}; nothing saved", conflicts)
     return MergeResult(out, from_disk, conflicts)
+
+
+def _value_keys(part: str) -> list[tuple]:
+    """The value keys whose estimate a sigma part describes."""
+    if part == "clock":
+        return [("offset_us",), ("skew_ppm",)]
+    if part == "hand_eye":
+        return [("hand_eye",)]
+    return [("object", part.split(":", 1)[1])]
+
+
+def _merge_sigma(part: str, base, local, disk, out, from_disk: list, conflicts: list, prefer) -> None:
+    """A sigma follows its value: the side whose value the merge took gives its sigma (a hand edit on one side and
+    an estimate's sigma on the other never meet); when both sides hold the same value the sigmas merge three ways
+    like a value; when the merged value is neither side's (a clock's offset from one, its skew from the other), no
+    sigma describes it unless both sides agree."""
+    key = ("sigma", part)
+    vk = _value_keys(part)
+    as_local = all(_same(k, out.get(k), local.get(k)) for k in vk)
+    as_disk = all(_same(k, out.get(k), disk.get(k)) for k in vk)
+    b, l, d = base.get(key), local.get(key), disk.get(key)
+    if as_local and as_disk:
+        if d == b or l == d:
+            return
+        if l == b or prefer == "disk":
+            out.set(key, d)
+            from_disk.append(field_name(key))
+            if l != b:
+                conflicts.append(Conflict(field_name(key), _show(key, l), _show(key, d)))
+            return
+        conflicts.append(Conflict(field_name(key), _show(key, l), _show(key, d)))
+    elif as_disk:
+        if l != d:
+            out.set(key, d)
+            from_disk.append(field_name(key))
+    elif not as_local:
+        out.set(key, l if l == d else None)
 
 
 def _scopes_meet(a: ReviewMark, b: ReviewMark) -> bool:

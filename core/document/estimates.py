@@ -32,10 +32,13 @@ def apply_clock_estimate(history: History, scene, offset_us: int, skew_ppm: floa
     undo step of ``history`` (which edits ``scene.corrections``), with the estimate's standard errors (µs, ppm: kept
     in the document's ``sigmas``, where the label sigma starts from; a skew the estimate kept is not its own)."""
     off, skew = clock_correction_for(scene, offset_us, skew_ppm)
+    kept_skew = (scene.corrections.sigma("clock") or {}).get("skew_ppm") if skew == scene.corrections.skew_ppm else None
     with history.group(text):
         history.set(("offset_us",), off)
         history.set(("skew_ppm",), skew)
-        _store_sigma(history, "clock", offset_us=offset_std_us, skew_ppm=None if skew_ppm is None else skew_std_ppm)
+        # a skew the estimate kept keeps the sigma it had (the offset's change dropped the clock's sigmas)
+        _store_sigma(history, "clock", offset_us=offset_std_us,
+                     skew_ppm=kept_skew if skew_ppm is None or skew_std_ppm is None else skew_std_ppm)
 
 
 def apply_pose_estimate(history: History, name: str, dT_base, text: str | None = None,

@@ -84,6 +84,8 @@ def run_export(scene, writer: FormatWriter, out_dir, *, window_us=DEFAULT_WINDOW
                                  margin_m=float(margin_m), include_stale=include_stale)
         if label_sigma is not None:
             doc["label_sigma"] = label_sigma.to_json()
+            if label_sigma.auto:           # the inputs are the document's: a changed sigma is another export
+                doc["label_sigma"]["stored"] = {p: v for p, v in sorted(scene.corrections.sigmas.items())}
         ctx = _open_folder(scene, writer, out_dir, windows, names, sel, doc, force=force, durable=durable,
                            margin_m=float(margin_m), label_at=label_at)
         ctx.extra["label_sigma_options"] = label_sigma

@@ -222,7 +222,7 @@ class LabelSigmaOptions:
     """What an export does with label uncertainty: the inputs' sigma it is computed from (``inputs``; None:
     ``auto``, each object's from the estimates stored in the scene's corrections, :func:`stored_input_sigmas`),
     and the limits above which a window is left out (None: no limit). Part of the export's fingerprint (with auto,
-    the stored sigmas are in the corrections' digest)."""
+    the stored sigmas too: :func:`evpose.core.export.runner` adds them)."""
 
     inputs: InputSigmas | None
     max_mm: float | None = None

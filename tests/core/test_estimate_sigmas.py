@@ -128,3 +128,44 @@ def test_a_drag_that_drops_a_sigma_is_still_one_undo_step():
     assert doc.sigma("object:box") == {"mm": 0.4, "deg": 0.2} and np.allclose(doc.object_delta("box"), T)
     h.redo()
     assert doc.sigma("object:box") is None and np.isclose(doc.object_delta("box")[0, 3], 0.005)
+
+
+def test_a_sigma_follows_its_value_through_a_merge():
+    """A hand edit on one side and an estimate's sigma on the other never meet (the review of issue 28.3): the side
+    whose value the merge takes gives the sigma; a clock merged from both sides has no sigma unless they agree."""
+    from evpose.core.document.corrections_merge import merge
+
+    T0 = T_from_rotvec([0, 0, 0.02], [0, 0, 0])
+    base = Corrections()
+    History(base).set(("object", "box"), T0)
+    kept, hand = base.copy(), base.copy()
+    History(kept).set(("sigma", "object:box"), {"mm": 0.4, "deg": 0.1})        # an estimate confirmed the pose
+    History(hand).set(("object", "box"), T0 @ T0)                              # another edit moved it by hand
+    for local, disk in ((hand, kept), (kept, hand)):
+        out = merge(base, local, disk).doc
+        assert np.allclose(out.object_delta("box"), T0 @ T0) and out.sigma("object:box") is None
+    same = merge(base, kept, kept.copy()).doc                                   # same value both sides: 3-way
+    assert same.sigma("object:box") == {"mm": 0.4, "deg": 0.1}
+    offset, skew = base.copy(), base.copy()
+    History(offset).set(("offset_us",), 900)
+    h = History(skew)
+    with h.group("estimate"):
+        h.set(("skew_ppm",), 3.0)
+        h.set(("sigma", "clock"), {"offset_us": 30.0, "skew_ppm": 1.0})
+    out = merge(base, offset, skew, prefer="disk").doc
+    assert (out.offset_us, out.skew_ppm, out.sigma("clock")) == (900, 3.0, None)
+
+
+def test_a_clock_estimate_that_keeps_the_skew_keeps_its_sigma(scene_copy):
+    from evpose.core.data.scene import Scene
+    from evpose.core.document.estimates import apply_clock_estimate
+
+    with Scene.open(scene_copy) as scene:
+        h = History(scene.corrections)
+        apply_clock_estimate(h, scene, scene.clock.offset_us + 100, scene.clock.skew_ppm + 2.0, "sync",
+                             offset_std_us=40.0, skew_std_ppm=1.5)
+        apply_clock_estimate(h, scene, scene.clock.offset_us + 50, None, "edges", offset_std_us=10.0)
+        assert scene.corrections.sigma("clock") == {"offset_us": 10.0, "skew_ppm": 1.5}
+        apply_clock_estimate(h, scene, scene.clock.offset_us, scene.clock.skew_ppm + 1.0, "other skew",
+                             offset_std_us=12.0)                               # a skew changed without its sigma
+        assert scene.corrections.sigma("clock") == {"offset_us": 12.0}

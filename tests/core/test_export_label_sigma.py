@@ -135,3 +135,21 @@ def test_label_sigma_auto_starts_from_the_sigmas_the_applied_estimates_stored(sc
     assert np.allclose(got[:, 0, 0], first.sigma_t_mm[:, 0], rtol=1e-9, equal_nan=True)
     assert np.allclose(got[:, 1, 0], other.sigma_t_mm[:, 0], rtol=1e-9, equal_nan=True)
     assert np.nanmedian(got[:, 0, 0]) > np.nanmedian(got[:, 1, 0])
+
+
+def test_label_sigma_auto_is_exported_again_when_a_stored_sigma_changes(scene_copy, tmp_path):
+    """The stored sigmas are inputs of an auto export: a rerun after one changed writes the windows again instead
+    of reporting the old files complete."""
+    from evpose.core.document.estimates import apply_pose_estimate
+    from evpose.core.document.history import History
+
+    out = tmp_path / "a"
+    first = export_scene(scene_copy, "h5", out, label_sigma=LabelSigmaOptions(None))
+    with Scene.open(scene_copy) as scene:
+        n = scene.object_names[0]
+        apply_pose_estimate(History(scene.corrections), n, scene.corrections.object_delta(n), std_mm=5.0, std_deg=2.0)
+        scene.save_corrections()
+    again = export_scene(scene_copy, "h5", out, label_sigma=LabelSigmaOptions(None), force=True)
+    assert first.written > 0 and again.written == first.written and again.skipped_complete == 0
+    with h5py.File(next(out.glob("*.h5")), "r") as f:
+        assert np.nanmax(f["label_sigma"][:, 0, 0]) > 1.0

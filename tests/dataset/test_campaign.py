@@ -378,3 +378,43 @@ def test_a_campaign_record_evpose_did_not_write_is_never_replaced(campaign, tmp_
     path = record_campaign(ds, CampaignResult(_params(), list(SPEEDS)), BatchResult(ds.name))
     assert json.loads(path.read_text())["format"] == "evpose-campaign-fit/1"
     record_campaign(ds, CampaignResult(_params(), list(SPEEDS)), BatchResult(ds.name))     # its own: replaced
+
+
+def test_a_scene_without_windows_says_nothing_and_does_not_stop_the_campaign(campaign):
+    """A static scene in a group (no window with camera motion) contributes no terms: the others are fitted."""
+    from evpose.core.align.campaign_fit import fit_campaign
+    from evpose.core.align.campaign_terms import LocalEvaluator
+    from evpose.core.data.scene import Scene
+    from evpose.core.dataset.campaign import campaign_scenes
+    from evpose.core.dataset.dataset import Dataset
+
+    p = _params().__class__(**{**_params().__dict__, "sigmas_px": (1.5, 0.8)})
+    names = ["slow", "fast"]
+    scenes = {n: Scene.open(campaign / n) for n in names}
+    try:
+        ev = LocalEvaluator(scenes, p)
+        ev.work["slow"].fit = None                      # as a scene whose camera never moves
+        r = fit_campaign(ev, campaign_scenes(Dataset.open(campaign).only(names), {"hand-eye", "placement"}), p)
+    finally:
+        for s in scenes.values():
+            s.close()
+    assert r.accepted and r.hand_eye["group:day1"].fitted and r.objective_after["slow"] == 0.0
+
+
+def test_a_share_planned_on_other_corrections_is_refused(campaign, fits, tmp_path):
+    """Another program saved the scene while the campaign was fitted: its share is not stored over that edit."""
+    from evpose.core.align.refine_run import ProposalError
+    from evpose.core.data.scene import Scene
+    from evpose.core.dataset.campaign import campaign_scene_task
+
+    _, local = fits
+    shutil.copytree(campaign / "slow", tmp_path / "slow")
+    with Scene.open(tmp_path / "slow") as scene:
+        planned = scene.corrections.digest()
+        assert planned == local.planned_on["slow"]
+        scene.corrections.set(("offset_us",), 1234)             # the other program's edit, saved
+        scene.save_corrections()
+    before = (tmp_path / "slow" / "corrections.json").read_bytes()
+    with pytest.raises(ProposalError, match="planned_on"):
+        campaign_scene_task(str(tmp_path / "slow"), None, local.per_scene["slow"], True, planned)
+    assert (tmp_path / "slow" / "corrections.json").read_bytes() == before
