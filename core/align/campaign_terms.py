@@ -185,7 +185,11 @@ class SceneWork:
         state = JointState(float(req.offset_us), float(c.skew_ppm), int(c.t_ref_us), np.asarray(req.H, np.float64),
                            [np.asarray(req.T_bo[nm], np.float64) for nm in self.names])
         fit.state = state
-        fit.contours = fit.look(state, previous=fit.contours)
+        # rendered afresh (no z-buffer lent by the last contours): the answer must not depend on which states this
+        # process saw before -- a Dask task run on another worker than the scene's usual one (work stealing, a lost
+        # worker) gave another hand-eye than the dry run (0.4 mrad) when it did
+        fit._looked = None
+        fit.contours = fit.look(state, previous=None)
         d = fit.data(state, fit.contours, req.sigma_px)
         beta = req.beta
         if d is None:

@@ -145,18 +145,20 @@ def test_the_campaign_recovers_what_the_slow_scene_cannot(campaign, fits):
 
 
 def test_a_scene_that_pins_everything_gets_its_own_answer(campaign, fits):
-    """A campaign of one scene is that scene's own joint fit (same model, same windows: within 0.05 mm / 0.02 deg
-    and 30 % of the sigma), and in the three-scene campaign the fast scene's terms agree with its own fit within
-    2 sigma of their difference."""
+    """A campaign of one scene is that scene's own joint fit (same model, same windows: within 0.3 sigma and its
+    sigma within 30 %; the single fit lends each look's z-buffer to the next, the campaign renders afresh so that its
+    answer does not depend on the worker), and in the three-scene campaign the fast scene's terms agree with its own
+    fit within 2 sigma of their difference."""
     own, camp = fits
     fast = own["fast"]
     alone = _fit(campaign, ["fast"]).per_scene["fast"]
-    assert _he_close(alone.hand_eye_dT_cam, fast.hand_eye_dT_cam, 0.05, 0.02)
+    assert _he_close(alone.hand_eye_dT_cam, fast.hand_eye_dT_cam, 0.3 * fast.hand_eye_std_mm,
+                     0.3 * fast.hand_eye_std_deg)
     assert alone.hand_eye_std_mm == pytest.approx(fast.hand_eye_std_mm, rel=0.3)
     assert alone.hand_eye_std_deg == pytest.approx(fast.hand_eye_std_deg, rel=0.3)
     for name, o in fast.objects.items():
         a = alone.objects[name]
-        assert _centre_gap_mm(campaign, name, a.dT_base, o.dT_base) < 0.05
+        assert _centre_gap_mm(campaign, name, a.dT_base, o.dT_base) < 0.3 * o.std_mm
         assert a.std_mm == pytest.approx(o.std_mm, rel=0.3)
     assert abs(alone.offset_us - fast.offset_us) <= 0.2 * fast.offset_std_us
     c = camp.per_scene["fast"]
