@@ -102,14 +102,14 @@ def _row(root: Path, name: str, r) -> dict:
             "accepted": bool(r.accepted)}
 
 
-def run_campaign(root: Path) -> dict:
+def run_campaign(root: Path, **knobs) -> dict:
     from evpose.core.align.campaign_fit import CampaignScene, fit_campaign
     from evpose.core.align.campaign_terms import LocalEvaluator
     from evpose.core.align.joint_fit import refine_joint
     from evpose.core.align.joint_result import JointParams
     from evpose.core.data.scene import Scene
 
-    params = JointParams(hand_eye=True, skew="fixed", n_windows=24)
+    params = JointParams(hand_eye=True, skew="fixed", n_windows=24, **knobs)
     out = {"own": {}, "campaign": {}, "start": {}}
     t_own = 0.0
     for name in SPEEDS:
@@ -192,6 +192,8 @@ def main(argv=None) -> int:
     ap.add_argument("--family", choices=("synth", "raycast", "both"), default="both")
     ap.add_argument("--seeds", type=int, default=None, help="first N seeds of each family")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--step-min-sigma", type=float, default=None,
+                    help="JointParams.step_min_sigma_px (default: the product's)")
     args = ap.parse_args(argv)
     families = ("synth", "raycast") if args.family == "both" else (args.family,)
     doc, lines = {}, []
@@ -199,7 +201,8 @@ def main(argv=None) -> int:
         runs = {}
         for seed in SEEDS[fam][: args.seeds]:
             root = ensure_campaign(fam, seed)
-            runs[seed] = run_campaign(root)
+            runs[seed] = run_campaign(root, **({} if args.step_min_sigma is None else
+                                               {"step_min_sigma_px": args.step_min_sigma}))
             print(f"  {fam} {seed}: campaign {runs[seed]['campaign_s']:.1f} s", file=sys.stderr, flush=True)
         doc[fam] = runs
         lines += summarise(fam, runs)

@@ -39,7 +39,7 @@ from evpose.core.align.campaign_result import CampaignResult, scene_result, unit
 from evpose.core.align.campaign_terms import SceneRequest
 from evpose.core.align.joint_model import he_delta
 from evpose.core.align.joint_result import JointParams
-from evpose.core.align.joint_solve import _complement, _sandwich_free, small_sample_factor
+from evpose.core.align.joint_solve import _complement, _sandwich_free, n_flat, prior_pull, small_sample_factor
 from evpose.core.align.pose_refine import delta_T
 from evpose.core.data.events import Cancelled
 
@@ -291,20 +291,19 @@ def _evaluate(evaluator, prob, state, theta, sigma, betas, covariance=False) -> 
 
 def _level(evaluator, prob: _Problem, state: _State, theta: np.ndarray, sigma: float, trace: list, cancel):
     """One kernel width, as the single fit's: per outer iteration every scene's contours and association at the
-    current state, and the step that maximises the summed objective with them held (:func:`_solve`); the width's
-    result is kept when it raises the summed objective with a fresh association, else its start is restored.
+    current state, and the step that maximises the summed objective with them held (:func:`_solve`); the width
+    ends at its best state by the summed objective with a fresh association (its start when no step raised it).
     Returns ``(state, theta, betas)``."""
     p = prob.params
-    start, theta_start = state, theta
-    betas, j0, converged = None, None, False
+    betas, converged, best = None, False, None
     outer = OUTER_FACTOR * p.outer_per_level
     for k in range(outer + 1):
         terms = _evaluate(evaluator, prob, state, theta, sigma, betas)
         if betas is None:
             betas = {nm: t.beta for nm, t in terms.items()}
         j = sum(t.F for t in terms.values())
-        if j0 is None:
-            j0 = j
+        if best is None or j > best[0]:
+            best = (j, state, theta)
         if k == outer or converged:
             break
         delta, f0, f1, move = _solve(evaluator, prob, state, theta, sigma, betas, terms, cancel)
@@ -313,21 +312,23 @@ def _level(evaluator, prob: _Problem, state: _State, theta: np.ndarray, sigma: f
         state, theta = _apply(prob, state, delta), theta + delta
         trace.append({"sigma_px": float(sigma), "objective": float(j), "predicted": float(f1), "move_px": float(move)})
         converged = move < p.converged_move * sigma
-    if not j >= j0:
-        return start, theta_start, betas
-    return state, theta, betas
+    return best[1], best[2], betas
 
 
 def _covariance(evaluator, prob: _Problem, state: _State, theta: np.ndarray, sigma: float, betas: dict,
                 shift: np.ndarray) -> np.ndarray:
     """Standard errors' covariance (global layout; inf rows/columns where the events leave a direction flat)."""
     terms = _evaluate(evaluator, prob, state, theta, sigma, betas, covariance=True)
-    A = np.zeros((prob.n, prob.n))
+    A, P = np.zeros((prob.n, prob.n)), np.zeros((prob.n, prob.n))
+    var = np.zeros(prob.n)
     rows, seen, held = [], np.zeros(prob.n, np.int64), []
     for name, t in terms.items():
         m = prob.maps[name]
         loc = np.flatnonzero(m >= 0)
         A[np.ix_(m[loc], m[loc])] += t.A_obs[np.ix_(loc, loc)]
+        if t.prior is not None:                # a shared object's start pose: one error, priored by every scene
+            P[np.ix_(m[loc], m[loc])] += t.prior[np.ix_(loc, loc)]
+            var[m[loc]] = np.maximum(var[m[loc]], t.prior_var[loc])
         for h in (t.held.T if t.held is not None else ()):
             if np.any(h[loc]):
                 v = np.zeros(prob.n)
@@ -342,10 +343,11 @@ def _covariance(evaluator, prob: _Problem, state: _State, theta: np.ndarray, sig
     G = np.concatenate(rows) if rows else np.zeros((0, prob.n))
     if len(G) < 3:
         return cov
-    C = _sandwich_blocks(prob, A, G, np.stack(held, axis=1) if held else np.zeros((prob.n, 0)))
+    C, C_pull = _sandwich_blocks(prob, A, G, np.stack(held, axis=1) if held else np.zeros((prob.n, 0)),
+                                 prior_pull(P, var))
     f = np.sqrt([small_sample_factor(int(k)) if k >= 2 else math.inf for k in seen])
     with np.errstate(invalid="ignore"):
-        cov = C * np.outer(f, f) + np.diag(shift ** 2)
+        cov = C * np.outer(f, f) + C_pull + np.diag(shift ** 2)
     return np.where(np.isnan(cov), np.inf, cov)
 
 
@@ -376,13 +378,16 @@ def _pinned_covariance(evaluator, prob: _Problem, state: _State, theta: np.ndarr
     return best[1], float(best[2])
 
 
-def _sandwich_blocks(prob: _Problem, A: np.ndarray, G: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """``A^-1 B A^-1`` over the parameters the events pin: as :func:`~evpose.core.align.joint_solve.sandwich`, a
-    scene's clock or an object whose parameters touch a flat direction gets infinite standard errors and is left
-    out of the others' covariance (then the rest again; the clocks first: a slow scene's clock trades with what
-    the others pin); a hand-eye that does is infinite itself."""
+def _sandwich_blocks(prob: _Problem, A: np.ndarray, G: np.ndarray, held: np.ndarray,
+                     pull: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(A^-1 B A^-1, A^-1 pull A^-1)`` over the parameters the events pin: as
+    :func:`~evpose.core.align.joint_solve.sandwich`, a scene's clock or an object whose parameters touch a flat
+    direction gets infinite standard errors and is left out of the others' covariance (one at a time, then the
+    rest again: :func:`_flat_blocks`); a hand-eye that does is infinite itself.
+    ``pull``: the prior's score covariance (:func:`~evpose.core.align.joint_solve.prior_pull`)."""
     n = prob.n
     cov = np.full((n, n), np.inf)
+    cov_pull = np.zeros((n, n))
     free = np.ones(n, bool)
     blocks: dict = {}
     for k, key in enumerate(prob.keys):
@@ -391,15 +396,15 @@ def _sandwich_blocks(prob: _Problem, A: np.ndarray, G: np.ndarray, held: np.ndar
         f = np.flatnonzero(free)
         if len(f) == 0:
             break
-        C, flat = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(G), _complement(held, f, free))
+        C, flat, C_pull, dirs = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(G), _complement(held, f, free),
+                                               pull[np.ix_(f, f)])
         cov[np.ix_(f, f)] = C
+        cov_pull[np.ix_(f, f)] = C_pull
         if not flat.any():
             break
-        touched = f[flat]
-        drop = {key for key, cols in blocks.items() if key[0] != "hand-eye" and np.isin(cols, touched).any()}
-        clocks = {key for key in drop if key[0] == "clock"}
-        drop = clocks or drop             # a scene's clock first (its own), then the objects (shared) it trades with
+        drop = _flat_blocks(prob, A, held, blocks, free, f, dirs)
         if not drop:                                      # a hand-eye unit itself is not pinned
+            touched = f[flat]
             cov[touched, :] = np.inf
             cov[:, touched] = np.inf
             break
@@ -407,7 +412,34 @@ def _sandwich_blocks(prob: _Problem, A: np.ndarray, G: np.ndarray, held: np.ndar
             free[blocks[key]] = False
             cov[blocks[key], :] = np.inf
             cov[:, blocks[key]] = np.inf
-    return cov
+    return cov, np.where(np.isfinite(cov), cov_pull, 0.0)
+
+
+def _flat_blocks(prob: _Problem, A: np.ndarray, held: np.ndarray, blocks: dict, free: np.ndarray, f: np.ndarray,
+                 dirs: np.ndarray) -> set:
+    """The block to leave out for the flat directions ``dirs`` (columns over the free parameters ``f``): of the
+    clocks and objects (never a hand-eye unit) with a share above 5 % of them, the one whose removal leaves the
+    fewest flat directions; on a tie a scene's own term before a shared one, then the smaller, then the larger
+    share. A slow scene's clock that trades with what the others pin goes, not the shared objects; an object seen
+    from one side goes, not the clock of a scene whose events pin it once that object is out (a rule by share
+    alone dropped that clock: two flat directions mix in their eigenvectors). Empty when no clock or object has
+    such a share: the hand-eye itself is flat."""
+    pos = {int(j): k for k, j in enumerate(f)}
+    best, best_key = None, None
+    for key, cols in blocks.items():
+        if key[0] == "hand-eye" or not free[cols].any():
+            continue
+        share = float(sum(np.sum(dirs[pos[c]] ** 2) for c in cols if c in pos))
+        if share <= 0.05:
+            continue
+        rest = free.copy()
+        rest[cols] = False
+        g = np.flatnonzero(rest)
+        left = n_flat(A[np.ix_(g, g)], _complement(held, g, rest))
+        rank = (left, int(prob.shared[cols].any()), len(cols), -share)
+        if best is None or rank < best:
+            best, best_key = rank, key
+    return set() if best_key is None else {best_key}
 
 
 def fit_campaign(evaluator, scenes: list, params: JointParams = JointParams(hand_eye=True), *, progress=None,
@@ -427,6 +459,11 @@ def fit_campaign(evaluator, scenes: list, params: JointParams = JointParams(hand
     result = CampaignResult(params=params, scenes=[cs.name for cs in scenes], notes=notes,
                             planned_on={cs.name: infos[cs.name].digest for cs in scenes})
     sigmas = next(iter(infos.values())).sigmas_px if infos else ()
+    other = [n for n, i in infos.items() if not np.allclose(i.sigmas_px, sigmas, rtol=1e-6, atol=0)]
+    if other:                 # one width in px for every scene: the kernel is in px of each scene's own camera
+        result.reason = (f"the scenes' cameras differ (kernel widths in px: {', '.join(sorted(other))} against "
+                         f"{next(iter(infos))}): a campaign of one camera resolution only; fit the others apart")
+        return _finish(result, prob, state0, state0, None, t0)
     if prob.n == 0 or not any(i.n_windows for i in infos.values()):
         result.reason = "nothing to fit: no scene has windows with camera motion and an object in view"
         return _finish(result, prob, state0, state0, None, t0)

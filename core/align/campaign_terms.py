@@ -21,12 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evpose.core.align.edges import _beta
 from evpose.core.align.event_windows import window_clusters
 from evpose.core.align.joint_fit import (_bounds, _choose, _Fit, _held_directions, _held_objects, _layout, _prior,
-                                        _symmetry_axes)
+                                        _prior_variance, _symmetry_axes, level_beta)
 from evpose.core.align.joint_model import JointState, jacobian
-from evpose.core.align.joint_result import JOINT_SIGMAS_PX, JointParams
+from evpose.core.align.joint_result import JointParams
 from evpose.core.align.joint_solve import _normal_eqs, cluster_scores, kernel_curvature, kernel_derivs
 
 __all__ = ["LocalEvaluator", "SceneInfo", "SceneRequest", "SceneTerms", "SceneWork", "level_sigmas"]
@@ -34,7 +33,7 @@ __all__ = ["LocalEvaluator", "SceneInfo", "SceneRequest", "SceneTerms", "SceneWo
 
 def level_sigmas(params: JointParams, fx: float) -> tuple:
     """The kernel widths of the fit, coarse to fine (px of a camera of focal length ``fx``), as the single fit's."""
-    return tuple(params.sigmas_px) if params.sigmas_px else tuple(s * fx / 146.0 for s in JOINT_SIGMAS_PX)
+    return params.sigmas(fx)
 
 
 @dataclass
@@ -92,7 +91,9 @@ class SceneTerms:
     (gradient of ``F``), ``M = J^T J`` (the predicted edge motion ``delta^T M delta / n_assoc``), ``bounds`` (largest
     change per parameter in one step) and, for a covariance request, ``A_obs`` (observed curvature plus prior),
     ``G`` (one row of score sums per cluster of windows) and ``held`` (``(n, h)``: the directions held at the start,
-    the spins of solids of revolution, which the standard errors leave out)."""
+    the spins of solids of revolution, which the standard errors leave out), ``prior`` (the object prior in
+    ``A_obs``) and ``prior_var`` (its mean's variance per parameter:
+    :func:`~evpose.core.align.joint_solve.prior_pull`)."""
 
     F: float
     beta: float | None
@@ -104,6 +105,8 @@ class SceneTerms:
     A_obs: np.ndarray | None = None
     G: np.ndarray | None = field(default=None, repr=False)
     held: np.ndarray | None = None
+    prior: np.ndarray | None = None
+    prior_var: np.ndarray | None = None
 
 
 class SceneWork:
@@ -165,7 +168,9 @@ class SceneWork:
                          (g - P @ theta) * free, self._M, self._bounds)
         if req.covariance:        # as the single fit's: the held spins left out of the covariance, not priored
             A_obs, _ = _normal_eqs(J, rows, kernel_curvature(s, d.outer, sigma, beta), dk, lay)
-            out.A_obs = (A_obs + _prior(lay, self.params, self.fit.radii, len(s))) * mask
+            out.prior = _prior(lay, self.params, self.fit.radii, len(s)) * mask
+            out.prior_var = _prior_variance(lay, self.params, self.fit.radii) * free
+            out.A_obs = A_obs * mask + out.prior
             out.held = _held_directions(n, _symmetry_axes(self.fit, self.fit.state)) * free[:, None]
             groups = d.win if self.fit.clusters is None else np.asarray(self.fit.clusters)[d.win]
             out.G = cluster_scores(J, rows, groups, dk, lay) * free
@@ -196,7 +201,7 @@ class SceneWork:
             self._kept = (req.base, None, None, None, None, beta, None)
             return
         if beta is None:
-            beta = _beta(d.s, d.outer, req.sigma_px)
+            beta = level_beta(d, req.sigma_px, self.params, float(fit.K[0, 0]))
         J = jacobian(d, fit.K, fit.centres(state), fit.radii)
         rows = d.slices(len(self.names))
         P = _prior(lay, self.params, fit.radii, len(d.s), _symmetry_axes(fit, state))

@@ -78,8 +78,8 @@ def _visible(cam, Pc: np.ndarray, dmax: np.ndarray) -> np.ndarray:
     H, W = dmax.shape
     uv, okp = cam.project(Pc)
     inside = okp & cam.in_image(uv)
-    ui = np.clip(np.rint(np.nan_to_num(uv[:, 0])).astype(np.intp), 0, W - 1)
-    vi = np.clip(np.rint(np.nan_to_num(uv[:, 1])).astype(np.intp), 0, H - 1)
+    ui = np.rint(np.clip(np.nan_to_num(uv[:, 0]), 0, W - 1)).astype(np.intp)     # clipped before the cast: a
+    vi = np.rint(np.clip(np.nan_to_num(uv[:, 1]), 0, H - 1)).astype(np.intp)     # point behind has huge uv
     tol = np.maximum(0.003, 0.01 * Pc[:, 2])
     return inside & (dmax[vi, ui] >= Pc[:, 2] - tol)
 

@@ -37,7 +37,7 @@ from evpose.core.align.event_windows import choose_windows, window_clusters
 from evpose.core.align.joint_check import check_held_out
 from evpose.core.align.joint_model import (HAND_EYE_RADIUS_M, HandEyeScene, JointState, gather, he_delta,
                                            jacobian, set_window_clock)
-from evpose.core.align.joint_result import JOINT_SIGMAS_PX, JointParams, JointResult, ObjectFit
+from evpose.core.align.joint_result import JointParams, JointResult, ObjectFit
 from evpose.core.align.joint_solve import Layout, kernel_derivs, sandwich, solve_step
 from evpose.core.align.pose_refine import _pose_change, delta_T
 from evpose.core.align.scene_proxy import scene_motion_proxy
@@ -91,6 +91,7 @@ class _Fit:
         self.contours = None             # the last contours (their z-buffers serve the next look)
         self.clusters = None             # a group id per window for the standard errors (None: each window)
         self._looked = None              # (state, contours) of the last look
+        self.cov_pull = None             # the object prior's share of the last covariance (:func:`_covariance`)
 
     def centres(self, state: JointState) -> np.ndarray:
         return np.array([T[:3, :3] @ me.centre + T[:3, 3] for T, me in zip(state.T_bo, self.setup.edges)])
@@ -196,23 +197,39 @@ def _held_objects(fit: _Fit, sigma: float, p: JointParams, names) -> dict:
     return held
 
 
+def level_beta(d, sigma: float, p: JointParams, fx: float) -> float:
+    """The density contrast ``beta`` of a width's first association ``d`` (:func:`~evpose.core.align.edges._beta`),
+    or 0 where ``p`` leaves the kernel's step term out (:meth:`JointParams.step_at`)."""
+    return _beta(d.s, d.outer, sigma) if p.step_at(sigma, fx) else 0.0
+
+
+def _prior_variance(lay: Layout, p: JointParams, radii: np.ndarray) -> np.ndarray:
+    """Per parameter, the variance the object prior of :func:`_prior` believes of a start pose (0: no prior):
+    ``p.prior_obj_mm ** 2`` per translation axis, ``p.prior_obj_deg ** 2`` per rotation axis (in the layout's
+    rotation units). The prior decides only what the events cannot tell apart; there its own uncertainty is the
+    estimate's (:func:`~evpose.core.align.joint_solve.sandwich`'s ``prior_var``)."""
+    var = np.zeros(lay.n)
+    if p.hand_eye and lay.free[8:].any():
+        for i, r in enumerate(radii):
+            unit_deg = math.degrees(1e-3 / r)                    # degrees per rotation unit
+            var[8 + 6 * i: 14 + 6 * i] = np.r_[np.full(3, p.prior_obj_mm ** 2),
+                                               np.full(3, (p.prior_obj_deg / unit_deg) ** 2)]
+    return var * lay.free
+
+
 def _prior(lay: Layout, p: JointParams, radii: np.ndarray, n_assoc: int, held_axes=()) -> np.ndarray:
     """The prior matrix of the parameters (zeros = none).
 
     With the hand-eye and objects both free, the object corrections get a zero-mean prior of ``p.prior_obj_mm`` /
-    ``p.prior_obj_deg`` worth ``p.prior_weight`` of the associated events: it decides only along directions the
-    events cannot tell apart (a common shift of every object against a hand-eye translation on a trajectory that
-    does not rotate). ``held_axes[i]``: unit rotation axes (base frame) along which object ``i``'s rotation is
-    held at its start (:func:`_symmetry_axes`: the spin of a solid of revolution) by a prior
-    :data:`HOLD_WEIGHT` times the associated events: the events cannot see it, so a step must not move it (the
-    standard errors leave those directions out: :func:`_held_directions`)."""
-    prior = np.zeros((lay.n, lay.n))
-    if p.hand_eye and lay.free[8:].any():
-        w = p.prior_weight * n_assoc
-        for i, r in enumerate(radii):
-            unit_deg = math.degrees(1e-3 / r)                    # degrees per rotation unit
-            d = np.r_[np.full(3, w / p.prior_obj_mm ** 2), np.full(3, w / (p.prior_obj_deg / unit_deg) ** 2)]
-            prior[8 + 6 * i: 14 + 6 * i, 8 + 6 * i: 14 + 6 * i] += np.diag(d)
+    ``p.prior_obj_deg`` (:func:`_prior_variance`) worth ``p.prior_weight`` of the associated events: it decides
+    only along directions the events cannot tell apart (a common shift of every object against a hand-eye
+    translation on a trajectory that does not rotate). ``held_axes[i]``: unit rotation axes (base frame) along
+    which object ``i``'s rotation is held at its start (:func:`_symmetry_axes`: the spin of a solid of revolution)
+    by a prior :data:`HOLD_WEIGHT` times the associated events: the events cannot see it, so a step must not move
+    it (the standard errors leave those directions out: :func:`_held_directions`)."""
+    var = _prior_variance(lay, p, radii)
+    w = p.prior_weight * n_assoc
+    prior = np.diag(np.divide(w, var, out=np.zeros(lay.n), where=var > 0))
     H = _held_directions(lay.n, held_axes)
     prior += HOLD_WEIGHT * max(n_assoc, 1) * (H @ H.T)
     free = lay.free.astype(float)
@@ -261,10 +278,11 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
            t_start: float, progress, cancel):
     """Fit at one kernel width: per outer iteration the contours and the association at the current state, and
     the step that maximises the objective with them held fixed (bounded per parameter by :func:`_bounds`). The
-    level's result is kept when it raises the level's objective with a fresh association, else the level's start
-    is restored. Returns the level's beta, or None without events."""
+    level ends at its best state by the level's objective with a fresh association (a step whose fresh association
+    falls -- a contour appearing or hiding -- is undone, not the whole width: bench/campaign.py lost a width's
+    progress that way), which is its start when no step raised it. Returns the level's beta, or None without events."""
     state0, total0 = fit.state, total.copy()
-    beta, j0, converged = None, None, False
+    beta, j0, converged, best = None, None, False, None
     for k in range(p.outer_per_level + 1):
         if cancel is not None and cancel():
             raise Cancelled("joint refinement cancelled")
@@ -273,10 +291,12 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
         if d is None:
             return beta
         if beta is None:
-            beta = _beta(d.s, d.outer, sigma)
+            beta = level_beta(d, sigma, p, float(fit.K[0, 0]))
         j = fit.value(d, sigma, beta)                   # the objective of the current state
         if j0 is None:
             j0 = j
+        if best is None or j > best[0]:
+            best = (j, fit.state, total.copy(), contours)
         if k == p.outer_per_level or converged:
             break
         rows = d.slices(len(fit.state.T_bo))
@@ -295,7 +315,9 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
         if progress is not None:
             progress(None, f"sigma {sigma:.2f} px: objective {j:.4f}, offset {fit.state.offset_us:.0f} us")
         converged = move < p.converged_move * sigma     # evaluated once more above, then the level ends
-    if not j >= j0:                                     # the level made things worse: back to its start
+    if best is not None and best[0] > j:                # a later step lost (a fresh association fell): the
+        _, fit.state, total[:], fit.contours = best     # best state of the width, not all of it thrown away
+    elif not j >= j0:                                   # the level made things worse: back to its start
         fit.state = state0
         total[:] = total0
         fit.contours = None
@@ -311,8 +333,17 @@ def _covariance(fit: _Fit, sigma: float, beta: float, lay: Layout, p: JointParam
     J = jacobian(d, fit.K, fit.centres(fit.state), fit.radii)
     rows = d.slices(len(fit.state.T_bo))
     axes = _symmetry_axes(fit, fit.state)
-    return sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, _prior(lay, p, fit.radii, len(d.s)),
-                    held=_held_directions(lay.n, axes), clusters=fit.clusters)
+    prior, held = _prior(lay, p, fit.radii, len(d.s)), _held_directions(lay.n, axes)
+    var = _prior_variance(lay, p, fit.radii)
+    events = sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, prior, held=held, clusters=fit.clusters)
+    fit.cov_pull = np.zeros_like(events)
+    if not var.any():                                   # no object prior (no hand-eye fitted): nothing pulls
+        return events
+    cov = sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, prior, held=held, clusters=fit.clusters,
+                   prior_var=var)
+    with np.errstate(invalid="ignore"):
+        fit.cov_pull = np.where(np.isfinite(cov) & np.isfinite(events), cov - events, 0.0)
+    return cov
 
 
 def _choose(scene, p: JointParams, clock, names, windows):
@@ -363,8 +394,7 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
         return result
     fit = _Fit(scene, names, windows, state, params)
     fit.clusters = window_clusters(scene, windows, clock0)
-    fx = float(scene.camera.K[0, 0])
-    sigmas = tuple(params.sigmas_px) if params.sigmas_px else tuple(s * fx / 146.0 for s in JOINT_SIGMAS_PX)
+    sigmas = params.sigmas(float(scene.camera.K[0, 0]))
     skew_free = params.clock and params.skew in ("fit", "auto")
     total = np.zeros(8 + 6 * len(names))
     beta = None
@@ -451,7 +481,7 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
     if d0 is None or beta is None:
         result.reason = result.reason or "no events near the objects' edges"
         return
-    beta0 = _beta(d0.s, d0.outer, sigma)
+    beta0 = level_beta(d0, sigma, fit.p, float(fit.K[0, 0]))
     j0 = fit.value(d0, sigma, beta0)
     j1 = fit.value(d1, sigma, beta0)
     result.objective_before, result.objective_after = j0, j1
@@ -485,6 +515,11 @@ def _finish(scene, fit: _Fit, result: JointResult, T_start, clock0, sigma, beta,
         result.hand_eye_std_mm = with_floor(np.sqrt(np.sum(sd[2:5] ** 2)), U.HAND_EYE_FLOOR_MM)
         result.hand_eye_std_deg = with_floor(np.sqrt(np.sum(sd[5:8] ** 2)) * math.degrees(1e-3 / HAND_EYE_RADIUS_M),
                                              U.HAND_EYE_FLOOR_DEG)
+        if cov is not None and fit.cov_pull is not None:
+            ev = np.sqrt(np.maximum(np.diag(cov)[2:8] - np.diag(fit.cov_pull)[2:8], 0.0))
+            result.hand_eye_std_events_mm = with_floor(np.sqrt(np.sum(ev[:3] ** 2)), U.HAND_EYE_FLOOR_MM)
+            result.hand_eye_std_events_deg = with_floor(
+                np.sqrt(np.sum(ev[3:] ** 2)) * math.degrees(1e-3 / HAND_EYE_RADIUS_M), U.HAND_EYE_FLOOR_DEG)
     for i, name in enumerate(fit.names):
         if not lay.free[8 + 6 * i]:
             continue

@@ -44,12 +44,29 @@ class JointParams:
     prior_obj_mm: float = 5.0
     prior_obj_deg: float = 3.0
     prior_weight: float = 0.01
+    #: the edge kernel's density-step term (:func:`~evpose.core.align.edges.kernel`'s ``beta``) only at widths of at
+    #: least this many px of a camera with fx = 146 (scaled as the widths; 0: at every width): the two coarsest of
+    #: JOINT_SIGMAS_PX. Chosen on bench/campaign.py's main-generator family (0: campaign hand-eye -0.6 to -1.8 mm
+    #: along the optical axis in 5 of 6 campaigns, 73 % of estimates within 2 sigma; 0.5: 100 %, own fits 90-92 %;
+    #: never: own fits 87 %, the slow scenes' own hand-eye median 3.0 mm instead of 1.3), then validated on the
+    #: ray-casting family (docs/campaign_bench.txt)
+    step_min_sigma_px: float = 0.5
 
     def __post_init__(self):
         if self.skew not in ("auto", "fit", "fixed"):
             raise ValueError(f"skew: expected 'auto', 'fit' or 'fixed', got {self.skew!r}")
         if self.objects is not None and not isinstance(self.objects, tuple):
             object.__setattr__(self, "objects", tuple(self.objects))
+
+    def sigmas(self, fx: float) -> tuple:
+        """The kernel widths, coarse to fine (px of a camera of focal length ``fx``)."""
+        return tuple(self.sigmas_px) if self.sigmas_px else tuple(s * fx / 146.0 for s in JOINT_SIGMAS_PX)
+
+    def step_at(self, sigma_px: float, fx: float) -> bool:
+        """Whether the kernel's density-step term is used at width ``sigma_px`` (px of a camera of focal length
+        ``fx``): the term pulls a sharp edge by ~1.6 beta kernel widths, and at widths below the events' own spread
+        about the edge its beta measures the contour's offset itself and holds it there."""
+        return sigma_px * 146.0 / fx >= self.step_min_sigma_px * (1 - 1e-9)
 
     def refine_params(self) -> RefineParams:
         """The shared edge-setup knobs in the form :class:`~evpose.core.align.edges.EdgeSetup` reads."""
@@ -110,6 +127,10 @@ class JointResult:
     hand_eye_dR_deg: float = 0.0
     hand_eye_std_mm: float | None = None
     hand_eye_std_deg: float | None = None
+    #: the hand-eye's standard errors from the events alone (the object prior's pull left out, the floors in): what
+    #: the mounting check tests a change against (:func:`~evpose.core.align.sync_run.mounting_check`)
+    hand_eye_std_events_mm: float | None = None
+    hand_eye_std_events_deg: float | None = None
     objective_before: float = float("nan")
     objective_after: float = float("nan")
     n_windows: int = 0
@@ -140,7 +161,9 @@ class JointResult:
              "hand_eye": None if not p.hand_eye else {
                  "dT_cam": None if self.hand_eye_dT_cam is None else np.asarray(self.hand_eye_dT_cam).tolist(),
                  "dt_mm": float(self.hand_eye_dt_mm), "dR_deg": float(self.hand_eye_dR_deg),
-                 "dt_std_mm": json_number(self.hand_eye_std_mm), "dR_std_deg": json_number(self.hand_eye_std_deg)},
+                 "dt_std_mm": json_number(self.hand_eye_std_mm), "dR_std_deg": json_number(self.hand_eye_std_deg),
+                 "dt_std_events_mm": json_number(self.hand_eye_std_events_mm),
+                 "dR_std_events_deg": json_number(self.hand_eye_std_events_deg)},
              "objective_before": json_number(self.objective_before), "objective_after": json_number(self.objective_after),
              "n_windows": int(self.n_windows), "iterations": int(self.iterations),
              "runtime_s": float(self.runtime_s), "accepted": bool(self.accepted), "reason": self.reason,

@@ -13,16 +13,19 @@ the windows' score sums ``sum_{e in w} K'(s_e) J_e``): events of one window shar
 they are not independent, and the spread between windows is what the data say about the estimate's noise. It is
 the linearised jackknife over windows; it grows when windows disagree (a model error that differs between
 viewpoints), not when all windows are shifted alike. Estimated from few clusters (4 motion segments) it is itself
-uncertain: it is widened by the Student-t factor of :func:`small_sample_factor`.
+uncertain: it is widened by the Student-t factor of :func:`small_sample_factor`. Where a weak prior decides what
+the events cannot (a hand-eye translation against a common shift of every object), the estimate is as uncertain as
+the prior's mean: its score's spread is added to ``B`` (:func:`prior_pull`).
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix", "cluster_scores",
-           "small_sample_factor"]
+__all__ = ["Layout", "solve_step", "sandwich", "kernel_derivs", "kernel_curvature", "prior_matrix", "prior_pull",
+           "cluster_scores", "small_sample_factor"]
 
 _E05 = math.exp(0.5)
 
@@ -171,7 +174,7 @@ def _within_trust_region(delta: np.ndarray, cand: np.ndarray, lin, s0: np.ndarra
 
 def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: np.ndarray, sigma: float,
              beta: float, lay: Layout, prior: np.ndarray | None = None, held: np.ndarray | None = None,
-             clusters: np.ndarray | None = None) -> np.ndarray:
+             clusters: np.ndarray | None = None, prior_var: np.ndarray | None = None) -> np.ndarray:
     """Cluster-robust covariance of the free parameters at the optimum (full ``n x n`` matrix, NaN rows/columns
     for fixed parameters): ``A^-1 B A^-1`` with ``A`` the objective's curvature and ``B`` the covariance of the
     clusters' score sums scaled to their number (``n_c / (n_c - 1)``). Clusters are the windows, or ``clusters``
@@ -182,7 +185,11 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
 
     ``held``: ``(n, h)`` unit directions of the parameter space held at the start (the spin of a solid of
     revolution): the covariance is that of the other directions (zero along the held ones), which are judged flat
-    or not on their own."""
+    or not on their own.
+
+    ``prior_var``: per parameter, the variance of the prior's mean (0: none; :func:`prior_pull`): where the prior
+    decides what the events cannot (a common shift of the objects against a hand-eye translation), the estimate is
+    as uncertain as the prior's mean, and the events' spread alone would call it exact."""
     n = lay.n
     _, dk, _ = kernel_derivs(s, outer, sigma, beta)
     A, _ = _normal_eqs(J, rows, kernel_curvature(s, outer, sigma, beta), dk, lay)   # observed curvature
@@ -197,12 +204,14 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
     inflate = small_sample_factor(len(ids))
     G = cluster_scores(J, rows, groups, dk, lay)
     held = np.zeros((n, 0)) if held is None else np.asarray(held, dtype=np.float64).reshape(n, -1)
+    pull = prior_pull(prior_matrix(prior, n), prior_var)
     for _ in range(lay.n_objects + 2):
         f = np.flatnonzero(free)
         if len(f) == 0:
             break
-        C, flat = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(ids), _complement(held, f, free))
-        C = C * inflate
+        C, flat, C_pull, _ = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(ids), _complement(held, f, free),
+                                            pull[np.ix_(f, f)])
+        C = C * inflate + C_pull
         if not flat.any():
             cov[np.ix_(f, f)] = C
             break
@@ -261,18 +270,57 @@ def _complement(held: np.ndarray, f: np.ndarray, free: np.ndarray) -> np.ndarray
     return null_space(held[np.ix_(f, keep)].T)
 
 
-def _sandwich_free(A: np.ndarray, G: np.ndarray, n_groups: int, Q: np.ndarray | None = None):
-    """``(A^-1 B A^-1, flat)`` for the free parameters, within the subspace spanned by the orthonormal columns of
-    ``Q`` (all of it when None; zero covariance outside); ``flat`` marks parameters with a non-negligible share in
-    a direction where ``A`` is not positive (inverted as zero there)."""
+def prior_pull(P: np.ndarray, prior_var: np.ndarray | None) -> np.ndarray:
+    """``P V P``: the covariance of the prior's score ``P (theta - mu)`` when its mean ``mu`` is off by an error
+    of variance ``V = diag(prior_var)`` (the start poses' own uncertainty). Added to the events' score covariance
+    in the sandwich, it gives ``A^-1 P V P A^-1``: ~V along directions only the prior decides, ~0 where the
+    events' curvature outweighs ``P``."""
+    n = P.shape[0]
+    if prior_var is None:
+        return np.zeros((n, n))
+    v = np.asarray(prior_var, dtype=np.float64)
+    return P @ (v[:, None] * P)
+
+
+def _scaled_eigh(A: np.ndarray):
+    """``(evals, evecs, scale, ok)`` of ``A`` scaled to a unit diagonal; ``ok``: the eigenvalues the curvature is
+    positive along (above 1e-6 of the largest)."""
+    scale = np.sqrt(np.maximum(np.abs(np.diag(A)), 1e-300))
+    evals, evecs = np.linalg.eigh(A / np.outer(scale, scale))
+    return evals, evecs, scale, evals > 1e-6 * max(float(evals.max()), 1e-300)
+
+
+def n_flat(A: np.ndarray, Q: np.ndarray | None = None) -> int:
+    """How many directions ``A`` (within the orthonormal columns of ``Q``) does not curve down along."""
+    if Q is not None:
+        A = Q.T @ A @ Q
+    return int(np.sum(~_scaled_eigh(A)[3])) if A.size else 0
+
+
+class Sandwich(NamedTuple):
+    """:func:`_sandwich_free`'s answer over the free parameters ``f``: ``cov`` (``A^-1 B A^-1``), ``flat`` (per
+    parameter: a non-negligible share in a direction where ``A`` is not positive, inverted as zero there),
+    ``cov_pull`` (``A^-1 pull A^-1``) and ``flat_dirs`` (``(len(f), k)``: those directions, unit length in the
+    curvature-scaled coordinates, so that each parameter's share of a direction can be compared)."""
+
+    cov: np.ndarray
+    flat: np.ndarray
+    cov_pull: np.ndarray
+    flat_dirs: np.ndarray
+
+
+def _sandwich_free(A: np.ndarray, G: np.ndarray, n_groups: int, Q: np.ndarray | None = None,
+                   pull: np.ndarray | None = None) -> Sandwich:
+    """The sandwich of the free parameters (:class:`Sandwich`), within the subspace spanned by the orthonormal
+    columns of ``Q`` (all of it when None; zero covariance outside); ``pull``: a further score covariance kept
+    apart (:func:`prior_pull`: not scaled by the clusters' small-sample factor)."""
     if Q is None:
         Q = np.eye(A.shape[0])
     A, G = Q.T @ A @ Q, G @ Q
     G = G - G.mean(axis=0)
     B = G.T @ G * (n_groups / (n_groups - 1.0))
-    scale = np.sqrt(np.maximum(np.abs(np.diag(A)), 1e-300))
-    evals, evecs = np.linalg.eigh(A / np.outer(scale, scale))
-    ok = evals > 1e-6 * max(float(evals.max()), 1e-300)
+    evals, evecs, scale, ok = _scaled_eigh(A)
     Ainv = (evecs[:, ok] / evals[ok]) @ evecs[:, ok].T / np.outer(scale, scale)
-    share = (Q ** 2) @ (evecs[:, ~ok] ** 2).sum(axis=1)
-    return Q @ (Ainv @ B @ Ainv) @ Q.T, share > 0.05
+    dirs = Q @ evecs[:, ~ok]
+    C_pull = np.zeros_like(A) if pull is None else Ainv @ (Q.T @ pull @ Q) @ Ainv
+    return Sandwich(Q @ (Ainv @ B @ Ainv) @ Q.T, (dirs ** 2).sum(axis=1) > 0.05, Q @ C_pull @ Q.T, dirs)

@@ -25,7 +25,6 @@ existing ``--out`` that is not a folder (a device, a FIFO, a socket), is refused
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 from evpose.core.data.atomic import write_atomic

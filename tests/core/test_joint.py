@@ -394,6 +394,13 @@ def test_mounting_check_takes_the_hand_eye_fit_only_when_significant():
     assert sync_run.mounting_check(first, alt, turns=False) is first and "does not turn" in first.notes[-1]
     first, alt = _fake_result(), _fake_result(he=True, dt_mm=10.0, dR_deg=(k + 1) * 0.05)
     assert sync_run.mounting_check(first, alt, turns=False) is alt and "does not turn" in alt.notes[-1]
+    # judged against the events' own sigma: the object prior's pull widens the stored sigma (how far the start poses
+    # may be off), not the evidence for a mounting change
+    first, alt = _fake_result(), _fake_result(he=True, dR_deg=(k + 1) * 0.05, std_deg=0.5)
+    alt.hand_eye_std_events_mm, alt.hand_eye_std_events_deg = 0.2, 0.05
+    assert sync_run.mounting_check(first, alt) is alt and "start poses' own uncertainty" in alt.notes[0]
+    first, alt = _fake_result(), _fake_result(he=True, dR_deg=(k + 1) * 0.05, std_deg=0.5)
+    assert sync_run.mounting_check(first, alt) is first                          # without it: the stored sigma
 
 
 def test_a_kept_mounting_carries_the_checks_sigma_into_the_document(wrong):
