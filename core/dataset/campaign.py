@@ -200,14 +200,17 @@ def check_record(dataset) -> Path:
 def record_campaign(dataset, result, batch) -> Path:
     """Write the group fit to ``campaign_fit.json`` beside the dataset's ``dataset.toml`` (atomic; a file of that
     name that evpose did not write is refused, never replaced): the groups' shared terms with their standard
-    errors, and which scenes stored them (revision of their corrections)."""
+    errors, and which scenes stored them (revision of their corrections; ``values``: a value changed, not only the
+    sigma of a value the fit confirmed)."""
     from evpose.core.data.atomic import write_atomic
 
     path = check_record(dataset)
     doc = {"format": CAMPAIGN_FORMAT, "dataset": dataset.name,
            "groups": [{"name": g.name, "shared": list(g.shared), "scenes": list(g.scenes)} for g in dataset.groups],
            "fit": result.to_json(),
-           "stored": {name: {"applied": bool(d.get("applied")), "revision": d.get("revision")}
+           "stored": {name: {"applied": bool(d.get("applied")), "revision": d.get("revision"),
+                             "values": bool(d.get("applied")) and any(c.get("part") != "sigma"
+                                                                      for c in d.get("changes") or ())}
                       for name, d in batch.scenes.items()},
            "failed": dict(batch.failed)}
     write_atomic(path, (json.dumps(doc, indent=1, sort_keys=True, allow_nan=False) + "\n").encode())

@@ -104,17 +104,19 @@ def _term(name: str, fit: dict, where: str, path, deg_digits: int) -> str:
 
 
 def _stored(scenes: list, stored: dict, failed: dict) -> str:
-    """Which of ``scenes`` stored the fit (their corrections' revision), which did not and which failed."""
-    done, kept, bad = [], [], []
+    """Which of ``scenes`` stored the fit (their corrections' revision), which only stored the sigma of values the
+    fit confirmed, which stored nothing and which failed (a record without ``values`` counts a store as values)."""
+    done, sigma_only, kept, bad = [], [], [], []
     for s in scenes:
         entry = stored.get(s)
         if s in failed:
             bad.append(f"{s} failed: {failed[s]}")
         elif isinstance(entry, dict) and entry.get("applied"):
-            done.append(f"{s} rev {entry.get('revision')}")
+            (done if entry.get("values", True) else sigma_only).append(f"{s} rev {entry.get('revision')}")
         else:
             kept.append(s if isinstance(entry, dict) else f"{s} (not in the record)")
     parts = [f"stored in {len(done)} of {len(scenes)} scenes" + (f" ({', '.join(done)})" if done else "")]
+    parts += [f"values confirmed, only their sigma stored: {', '.join(sigma_only)}"] if sigma_only else []
     parts += [f"nothing stored: {', '.join(kept)}"] if kept else []
     return "; ".join(parts + bad)
 

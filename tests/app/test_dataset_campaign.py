@@ -60,7 +60,8 @@ def _record(root):
     fit.placements = {"group:day1": {"box": UnitFit(["a", "b"], np.eye(4), 0.861, 0.2812, 0.58, 0.171, True),
                                      "cylinder": UnitFit(["a", "b"], np.eye(4), reason=CYLINDER_REASON)},
                       "scene:c": {"box": UnitFit(["c"], np.eye(4), 9.0, 9.0, 1.0, 1.0, True)}}
-    batch = BatchResult(ds.name, scenes={"a": {"applied": True, "revision": 4}, "c": {"applied": False}},
+    batch = BatchResult(ds.name, scenes={"a": {"applied": True, "revision": 4, "changes": [{"part": "hand-eye"}]},
+                                         "c": {"applied": False}},
                         failed={"b": "b/corrections.json: changed on disk since the fit"})
     return record_campaign(ds, fit, batch)
 
@@ -80,6 +81,11 @@ def test_record_lines_per_group_with_sigma(tmp_path):
     assert lines[0] == ("Campaign fit of 3 scenes: not accepted: the campaign fit did not raise the summed edge "
                         "objective (every shared term kept its start)")
     assert lines[1] == "day1 (2 scenes): hand-eye 1.15 mm ± 0.80, 0.268° ± ∞"
+    # a scene whose share only stored the sigma of values the fit confirmed is not counted as a stored fit
+    doc["stored"]["a"]["values"] = False
+    assert record_lines(doc, path)[4] == ("day1: stored in 0 of 2 scenes; values confirmed, only their sigma "
+                                          "stored: a rev 4; b failed: b/corrections.json: changed on disk since "
+                                          "the fit")
     # a kind the group shares in dataset.toml that this fit did not share (--shared placement)
     del doc["fit"]["hand_eye"]["group:day1"]
     assert record_lines(doc, path)[1] == "day1 (2 scenes): hand-eye not shared in this fit (each scene its own)"

@@ -370,6 +370,7 @@ def test_dataset_refine_shared_on_dask_is_the_local_fit_and_apply_stores_each_sc
     for name in SPEEDS:
         d = applied["scenes"][name]
         assert d["applied"] and record["stored"][name]["revision"] == d["revision"]
+        assert record["stored"][name]["values"] == any(c["part"] != "sigma" for c in d["changes"])
         mine = local.per_scene[name]
         with Scene.open(root / name) as scene:
             assert np.allclose(scene.corrections.hand_eye_delta, mine.hand_eye_dT_cam, atol=1e-9)
