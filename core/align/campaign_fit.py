@@ -127,14 +127,21 @@ class _State:
 
 def _start(scenes, infos) -> tuple[_State, list]:
     """The start: each scene's clock, no hand-eye increment, each placement's object poses from the first of its
-    scenes that has the object (a note for every other scene whose pose in effect differs by > 0.05 mm/deg)."""
+    scenes that has the object (a note for every other scene whose pose in effect differs by > 0.05 mm/deg; also
+    for a scene whose hand-eye correction in effect differs from its group's first scene's)."""
     from evpose.core.data.geometry import pose_error
 
-    state, notes = _State({}, {}, {}), []
+    state, notes, he_first = _State({}, {}, {}), [], {}
     for cs in scenes:
         info = infos[cs.name]
         state.offset_us[cs.name] = float(info.offset_us)
         state.H.setdefault(cs.hand_eye, np.eye(4))
+        first = he_first.setdefault(cs.hand_eye, (cs.name, np.asarray(info.hand_eye, np.float64)))
+        et, er = pose_error(np.asarray(info.hand_eye, np.float64), first[1])
+        if first[0] != cs.name and (np.linalg.norm(et) * 1e3 > 0.05 or math.degrees(np.linalg.norm(er)) > 0.05):
+            notes.append(f"{cs.name}: its hand-eye correction in effect differs from {first[0]}'s by "
+                         f"{np.linalg.norm(et) * 1e3:.2f} mm / {math.degrees(np.linalg.norm(er)):.2f} deg; "
+                         f"{cs.hand_eye}'s increment is fitted on top of each, so the difference stays")
         for nm in info.names:
             key = (cs.placement, nm)
             if key not in state.T:

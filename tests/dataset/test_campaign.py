@@ -253,6 +253,25 @@ def test_the_schur_step_is_the_dense_solve():
     assert np.allclose(CF._step(prob, terms, lam), dense, rtol=1e-8, atol=1e-10)
 
 
+def test_differing_corrections_in_effect_within_a_group_are_noted():
+    """A group shares one hand-eye and one placement; scenes whose corrections in effect already differ (one
+    scene's hand-eye or an object edited alone) keep that difference under the shared increment: each is noted."""
+    from evpose.core.align import campaign_fit as CF
+    from evpose.core.align.campaign_terms import SceneInfo
+
+    def info(he_mm, box_mm):
+        H, T = np.eye(4), np.eye(4)
+        H[0, 3], T[1, 3] = he_mm * 1e-3, box_mm * 1e-3
+        return SceneInfo(["box"], 0, 0.0, 0, {"box": T}, {"box": np.eye(4)}, H, {"box": np.zeros(3)},
+                         {"box": 0.05}, {}, (1.0,), 4)
+
+    scenes = [CF.CampaignScene(n, "group:g", "group:p") for n in ("a", "b", "c")]
+    _, notes = CF._start(scenes, {"a": info(0, 0), "b": info(0.01, 0), "c": info(1.5, 2.0)})
+    assert len(notes) == 2, notes                                  # b's 0.01 mm is below the 0.05 mm of a note
+    assert any(n.startswith("c: its hand-eye correction in effect differs from a's by 1.50 mm") for n in notes)
+    assert any(n.startswith("c: box's pose in effect differs from group:p's start by 2.00 mm") for n in notes)
+
+
 def test_a_campaign_of_two_camera_resolutions_is_refused_with_the_scenes_named():
     """The kernel widths are px of each scene's camera; a campaign fits at one width per level, so scenes whose
     cameras give other widths (a binned and a full-resolution recording) are refused, not fitted at wrong widths."""
