@@ -127,8 +127,9 @@ def unit_fits(scenes, infos, index: dict, state0, end, sd: np.ndarray, accepted:
 def scene_result(cs, info, offset_us: float, offset_std_us: float, campaign: CampaignResult,
                  params: JointParams) -> JointResult:
     """Scene ``cs``'s view of the campaign: its clock, its placement's object poses as corrections of its manifest
-    (changes and standard errors against its own poses in effect), and its hand-eye unit's increment on top of
-    its own correction in effect."""
+    (changes and standard errors against its own poses in effect; also for an object this scene alone would hold,
+    e.g. mostly out of its view, when the placement's other scenes fitted it), and its hand-eye unit's increment on
+    top of its own correction in effect."""
     p = JointParams(clock=params.clock, skew="fixed", objects=params.objects, hand_eye=params.hand_eye,
                     n_windows=params.n_windows)
     clock_ok = campaign.accepted and math.isfinite(offset_std_us)
@@ -140,11 +141,14 @@ def scene_result(cs, info, offset_us: float, offset_std_us: float, campaign: Cam
                     hand_eye_dT_cam=np.asarray(info.hand_eye).copy())
     r.held = dict(info.held)
     for nm, f in campaign.placements.get(cs.placement, {}).items():
-        if nm not in info.names or nm in r.held:
+        if nm not in info.names:
             continue
         if not f.fitted:
-            r.held[nm] = f.reason
+            r.held.setdefault(nm, f.reason)
             continue
+        if nm in r.held:          # one T_base_obj per placement: what the group's other scenes pinned goes here too
+            r.notes.append(f"{nm}: held in this scene ({r.held.pop(nm)}); the pose its placement's other scenes "
+                           "fitted is stored here too")
         T0 = np.asarray(info.T_start[nm])
         ang, moved = _pose_change(f.T @ inv_T(T0), T0[:3, :3] @ info.centre_obj[nm] + T0[:3, 3])
         r.objects[nm] = ObjectFit(dT_base=f.T @ inv_T(np.asarray(info.T_manifest[nm])), dt_mm=moved, dR_deg=ang,

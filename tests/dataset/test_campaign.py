@@ -272,6 +272,30 @@ def test_differing_corrections_in_effect_within_a_group_are_noted():
     assert any(n.startswith("c: box's pose in effect differs from group:p's start by 2.00 mm") for n in notes)
 
 
+def test_an_object_one_scene_holds_gets_the_pose_its_placement_fitted():
+    """One T_base_obj per placement: an object a scene would hold on its own (mostly out of its view) but the
+    group's other scenes pinned gets the placement's pose in that scene's share too (with a note), so that --apply
+    leaves the placement agreeing; an object nobody pinned stays held with the fit's reason."""
+    from evpose.core.align.campaign_result import CampaignResult, UnitFit, scene_result
+    from evpose.core.align.campaign_terms import SceneInfo
+    from evpose.core.align.joint_result import JointParams
+
+    T = np.eye(4)
+    T[0, 3] = 0.002
+    info = SceneInfo(["box", "can"], 0, 0.0, 0, {"box": np.eye(4), "can": np.eye(4)},
+                     {"box": np.eye(4), "can": np.eye(4)}, np.eye(4), {"box": np.zeros(3), "can": np.zeros(3)},
+                     {"box": 0.05, "can": 0.05}, {"box": "mostly out of view"}, (1.0,), 4)
+    camp = CampaignResult(JointParams(hand_eye=True), ["a", "b"], accepted=True)
+    camp.placements = {"group:p": {"box": UnitFit(["a", "b"], T, 2.0, 0.0, 0.3, 0.1, True),
+                                   "can": UnitFit(["a", "b"], np.eye(4), reason="not pinned")}}
+    from evpose.core.align import campaign_fit as CF
+
+    r = scene_result(CF.CampaignScene("a", "group:g", "group:p"), info, 0.0, 100.0, camp, JointParams(hand_eye=True))
+    assert np.allclose(r.objects["box"].dT_base, T) and "box" not in r.held
+    assert any(n.startswith("box: held in this scene (mostly out of view)") for n in r.notes), r.notes
+    assert r.held == {"can": "not pinned"} and "can" not in r.objects
+
+
 def test_a_campaign_of_two_camera_resolutions_is_refused_with_the_scenes_named():
     """The kernel widths are px of each scene's camera; a campaign fits at one width per level, so scenes whose
     cameras give other widths (a binned and a full-resolution recording) are refused, not fitted at wrong widths."""
