@@ -85,9 +85,10 @@ def test_textured_scene_sigma_covers_the_truth_and_the_fit_ends_better_than_its_
     assert "skew_err_ppm" not in joint and joint["r_skew_unpinned"] <= 2, joint
     for name, o in row["objects"].items():                   # every pose better than its start, within 4 sigma
         assert "held" not in o, (name, o)
-        assert o["mm"] < 0.5 * o["start_mm"], (name, o)
-        if name != "cylinder":                               # its position's sigma and its tilt: the next tests
-            assert o["r_mm"] <= 4, (name, o)
+        # (the stand-in cylinder's position: 3.3 sigma until 2026-11-29, 4.1 once the fine widths left out the
+        # density-step term, 3.97 with the floors set again on the calibration family)
+        assert o["mm"] < 0.5 * o["start_mm"] and o["r_mm"] <= 4, (name, o)
+        if name != "cylinder":                               # its tilt: the next test
             assert o["deg"] < 0.5 * o["start_deg"] and o["r_deg"] <= 4, (name, o)
 
 
@@ -96,15 +97,6 @@ def test_the_tilt_of_the_cylinder_is_fitted_or_its_sigma_covers_it(validation_sc
     # ends at its best state and the sigma, 0.42 deg, covers it: 3.3 sigma)
     o = _row("textured", validation_scene, evaluate)["objects"]["cylinder"]
     assert o["deg"] < 0.5 * o["start_deg"] or o["r_deg"] <= 4, o
-
-
-@pytest.mark.xfail(strict=True, reason="open: since the fine widths leave out the kernel's density-step term "
-                                       "(JointParams.step_min_sigma_px, chosen on the main generator's campaigns), "
-                                       "the stand-in cylinder's position is 0.92 mm off with a sigma of 0.22 mm "
-                                       "(4.1 sigma; with the term at every width 0.99 mm, 0.30 mm: 3.3 sigma)")
-def test_the_position_of_the_cylinder_is_within_4_sigma(validation_scene, evaluate, models_dir):
-    o = _row("textured", validation_scene, evaluate)["objects"]["cylinder"]
-    assert o["r_mm"] <= 4, o
 
 
 def test_the_skew_is_estimated_on_a_long_scene(validation_scene, evaluate):
@@ -118,8 +110,8 @@ def test_the_skew_is_estimated_on_a_long_scene(validation_scene, evaluate):
 
 @pytest.mark.xfail(strict=True, reason="open: since the fine widths leave out the kernel's density-step term "
                                        "(JointParams.step_min_sigma_px, chosen on the main generator's campaigns), "
-                                       "the long scene's skew is 26.6 ppm off (sigma 18.7: 1.4 sigma; with the term "
-                                       "at every width 3.8 ppm): the textured objects' density step carried timing "
+                                       "the long scene's skew is 26.6 ppm off (sigma ~20 with the floors set again: "
+                                       "1.3 sigma; with the term at every width 3.8 ppm): the textured objects' density step carried timing "
                                        "information the ridge alone does not")
 def test_the_skew_of_a_long_scene_is_within_10_ppm(validation_scene, evaluate):
     joint = _row("long", validation_scene, evaluate)["joint"]
