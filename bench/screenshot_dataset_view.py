@@ -31,15 +31,12 @@ import shutil
 import subprocess
 import sys
 import time
-import tomllib
 from pathlib import Path
 
-import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 MARKER = ".evpose-screenshot-work"          # a --work folder this script made (it removes only its own subfolders)
-TRIAGE_SCENES = ("a_right", "b_clock", "c_pose", "d_mounting", "e_broken")
-CAMPAIGN_SPEEDS = {"slow": 0.1, "mid": 0.5, "fast": 1.0}
+PART_MARKER = ".evpose-screenshot-part"     # in every subfolder the script made: the only ones it ever removes
 CAMPAIGN_TOML = """format = "evpose-dataset/1"
 scenes = ["slow", "mid", "fast"]
 
@@ -51,40 +48,36 @@ scenes = ["slow", "mid", "fast"]
 REFINE_CMD = ["dataset", "refine", None, "--joint", "--shared", "hand-eye,placement", "--windows", "16",
               "--workers", "2", "--apply", "-q"]
 
+sys.path.insert(0, str(REPO / "tests"))
+from evpose_testing import build_triage_dataset, generate_campaign  # noqa: E402
+
 
 def log(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 # ------------------------------------------------------------------------------------------------ datasets
-def half_davis_camera() -> dict:
-    from evpose.core.data.camera import CameraModel
-
-    return CameraModel.davis346().binned(2).to_dict()
-
-
-def _edit(scene: Path, change) -> None:
-    import tomli_w
-
-    manifest = tomllib.loads((scene / "scene.toml").read_text())
-    change(manifest)
-    (scene / "scene.toml").write_text(tomli_w.dumps(manifest))
+def _own(path: Path) -> bool:
+    """Whether ``path`` is a folder this script made (its marker inside; never a symbolic link)."""
+    return not path.is_symlink() and path.is_dir() and (path / PART_MARKER).is_file()
 
 
-def _moved(T, mm: float, deg: float, axis) -> list:
-    from scipy.spatial.transform import Rotation
-
-    T = np.asarray(T, dtype=np.float64).copy()
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    T[:3, :3] = Rotation.from_rotvec(np.radians(deg) * axis).as_matrix() @ T[:3, :3]
-    T[:3, 3] += mm * 1e-3 * axis
-    return T.tolist()
+def _remove_own(path: Path) -> None:
+    """Remove ``path`` when this script made it; anything else in the way -- a folder without the marker, a file,
+    a symbolic link -- stops the script with one line, nothing removed."""
+    if not (path.exists() or path.is_symlink()):
+        return
+    if not _own(path):
+        sys.exit(f"screenshot_dataset_view: {path} is in the way and not this script's ({PART_MARKER} missing); "
+                 "move it away")
+    shutil.rmtree(path)
 
 
 def _fresh(path: Path) -> Path:
-    """``path`` emptied (it is a subfolder of the marked work folder: this script's own)."""
-    if path.exists():
-        shutil.rmtree(path)
+    """``path`` as a new, empty folder of this script's (marked), after :func:`_remove_own` of what was there."""
+    _remove_own(path)
+    path.mkdir()
+    (path / PART_MARKER).touch()
     return path
 
 
@@ -99,58 +92,33 @@ def work_folder(path: Path) -> Path:
     return path
 
 
-def triage_dataset(work: Path) -> Path:
-    """The five scenes of ``test_triage_verdicts.py``'s ``triage_dataset`` in ``work/ds`` (reused when present)."""
-    from evpose.core.sim.synth import generate
-    from evpose.core.sim.synth_config import SynthConfig
-
-    root = work / "ds"
-    if root.is_dir():
-        log(f"reusing the triage dataset {root}")
-        return root
+def _built_once(work: Path, name: str, build) -> Path:
+    """``work/name``, built by ``build(part)`` in ``work/name.partial`` and renamed when complete (a run stopped
+    midway builds it again), or reused when present."""
+    done = work / name
+    if done.is_dir():
+        log(f"reusing {done}")
+        return done
     t0 = time.perf_counter()
-    part = _fresh(work / "ds.partial")
-    base = part / "base"
-    generate(base, SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5, duration_s=2.5,
-                               seed=12, max_px_per_frame=0.5, camera=half_davis_camera()))
-    ds = part / "ds"
-    for name in TRIAGE_SCENES:
-        shutil.copytree(base, ds / name)
-    _edit(ds / "b_clock", lambda m: m["clock"].update(offset_us=20_000))
+    part = _fresh(work / f"{name}.partial")
+    build(part)
+    part.rename(done)
+    log(f"built {done} in {time.perf_counter() - t0:.1f} s")
+    return done
 
-    def box_off(m):
-        box = next(o for o in m["objects"] if o["name"] == "box")
-        box["T_base_obj"] = _moved(box["T_base_obj"], 5.0, 3.0, [0.3, -0.5, 0.8])
-    _edit(ds / "c_pose", box_off)
-    # the recorded poses become the flange's, the camera mounted 2 mm / 0.5 deg off it
-    _edit(ds / "d_mounting", lambda m: m["trajectory"].update(frame="tcp", hand_eye=_moved(np.eye(4), 2.0, 0.5,
-                                                                                           [1.0, 0.4, -0.2])))
-    (ds / "e_broken" / "events.h5").write_bytes(b"not an hdf5 file")
-    ds.rename(root)                               # complete, or not there: a run stopped midway builds it again
-    shutil.rmtree(part)
-    log(f"built the triage dataset {root} in {time.perf_counter() - t0:.1f} s")
-    return root
+
+def triage_dataset(work: Path) -> Path:
+    """The five scenes of ``test_triage_verdicts.py``'s ``triage_dataset`` in ``work/ds`` (reused)."""
+    def build(part):
+        base = _fresh(work / "triage_base.partial")            # the recording they are copied from
+        build_triage_dataset(base / "scene", part)
+        _remove_own(base)
+    return _built_once(work, "ds", build)
 
 
 def campaign_scenes(work: Path) -> Path:
     """The three generated scenes of ``test_campaign.py``'s ``campaign`` in ``work/campaign_scenes`` (reused)."""
-    from evpose.core.sim.synth import generate
-    from evpose.core.sim.synth_config import SynthConfig
-
-    src = work / "campaign_scenes"
-    if src.is_dir():
-        log(f"reusing the campaign's generated scenes {src}")
-        return src
-    t0 = time.perf_counter()
-    part = _fresh(work / "campaign_scenes.partial")
-    for name, speed in CAMPAIGN_SPEEDS.items():
-        generate(part / name, SynthConfig(
-            objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=speed, duration_s=2.5, seed=21,
-            pose_error_mm=3.0, pose_error_deg=1.5, pose_error_seed=5, hand_eye_error_mm=2.0, hand_eye_error_deg=0.5,
-            max_px_per_frame=0.5, camera=half_davis_camera()))
-    part.rename(src)
-    log(f"generated the campaign's scenes {src} in {time.perf_counter() - t0:.1f} s")
-    return src
+    return _built_once(work, "campaign_scenes", generate_campaign)
 
 
 def campaign_dataset(work: Path) -> Path:
@@ -158,7 +126,8 @@ def campaign_dataset(work: Path) -> Path:
     with ``evpose dataset refine --joint --shared hand-eye,placement --apply``."""
     src = campaign_scenes(work)
     root = _fresh(work / "campaign")
-    shutil.copytree(src, root)
+    for name in ("slow", "mid", "fast"):
+        shutil.copytree(src / name, root / name)
     (root / "dataset.toml").write_text(CAMPAIGN_TOML)
     cmd = [sys.executable, "-m", "evpose"] + [str(root) if a is None else a for a in REFINE_CMD]
     log("running evpose " + " ".join(cmd[3:]))

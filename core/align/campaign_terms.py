@@ -28,12 +28,7 @@ from evpose.core.align.joint_model import JointState, jacobian
 from evpose.core.align.joint_result import JointParams
 from evpose.core.align.joint_solve import _normal_eqs, cluster_scores, kernel_curvature, kernel_derivs
 
-__all__ = ["LocalEvaluator", "SceneInfo", "SceneRequest", "SceneTerms", "SceneWork", "level_sigmas"]
-
-
-def level_sigmas(params: JointParams, fx: float) -> tuple:
-    """The kernel widths of the fit, coarse to fine (px of a camera of focal length ``fx``), as the single fit's."""
-    return params.sigmas(fx)
+__all__ = ["LocalEvaluator", "SceneInfo", "SceneRequest", "SceneTerms", "SceneWork"]
 
 
 @dataclass
@@ -123,7 +118,7 @@ class SceneWork:
         windows = _choose(scene, p, clock, self.names, None)
         self.fit = None
         self.held = {}
-        self.sigmas = level_sigmas(p, float(scene.camera.K[0, 0]))
+        self.sigmas = p.sigmas(float(scene.camera.K[0, 0]))     # as the single fit's
         if windows:
             state = JointState(float(clock.offset_us), float(clock.skew_ppm), int(clock.t_ref_us), np.eye(4),
                                [self.T_start[n].copy() for n in self.names])

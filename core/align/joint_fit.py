@@ -335,14 +335,8 @@ def _covariance(fit: _Fit, sigma: float, beta: float, lay: Layout, p: JointParam
     axes = _symmetry_axes(fit, fit.state)
     prior, held = _prior(lay, p, fit.radii, len(d.s)), _held_directions(lay.n, axes)
     var = _prior_variance(lay, p, fit.radii)
-    events = sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, prior, held=held, clusters=fit.clusters)
-    fit.cov_pull = np.zeros_like(events)
-    if not var.any():                                   # no object prior (no hand-eye fitted): nothing pulls
-        return events
-    cov = sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, prior, held=held, clusters=fit.clusters,
-                   prior_var=var)
-    with np.errstate(invalid="ignore"):
-        fit.cov_pull = np.where(np.isfinite(cov) & np.isfinite(events), cov - events, 0.0)
+    cov, fit.cov_pull = sandwich(d.s, J, rows, d.win, d.outer, sigma, beta, lay, prior, held=held,
+                                 clusters=fit.clusters, prior_var=var, parts=True)
     return cov
 
 

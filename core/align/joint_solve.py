@@ -174,7 +174,7 @@ def _within_trust_region(delta: np.ndarray, cand: np.ndarray, lin, s0: np.ndarra
 
 def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: np.ndarray, sigma: float,
              beta: float, lay: Layout, prior: np.ndarray | None = None, held: np.ndarray | None = None,
-             clusters: np.ndarray | None = None, prior_var: np.ndarray | None = None) -> np.ndarray:
+             clusters: np.ndarray | None = None, prior_var: np.ndarray | None = None, parts: bool = False):
     """Cluster-robust covariance of the free parameters at the optimum (full ``n x n`` matrix, NaN rows/columns
     for fixed parameters): ``A^-1 B A^-1`` with ``A`` the objective's curvature and ``B`` the covariance of the
     clusters' score sums scaled to their number (``n_c / (n_c - 1)``). Clusters are the windows, or ``clusters``
@@ -189,7 +189,8 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
 
     ``prior_var``: per parameter, the variance of the prior's mean (0: none; :func:`prior_pull`): where the prior
     decides what the events cannot (a common shift of the objects against a hand-eye translation), the estimate is
-    as uncertain as the prior's mean, and the events' spread alone would call it exact."""
+    as uncertain as the prior's mean, and the events' spread alone would call it exact. ``parts``: return
+    ``(cov, cov_pull)``, the prior's share apart (zero where the covariance is not finite)."""
     n = lay.n
     _, dk, _ = kernel_derivs(s, outer, sigma, beta)
     A, _ = _normal_eqs(J, rows, kernel_curvature(s, outer, sigma, beta), dk, lay)   # observed curvature
@@ -198,9 +199,10 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
     ids = np.unique(groups)
     cov = np.full((n, n), np.nan)
     free = lay.free.copy()
+    cov_pull = np.zeros((n, n))
     if len(ids) < 3:
         cov[np.ix_(free, free)] = np.inf
-        return cov
+        return (cov, cov_pull) if parts else cov
     inflate = small_sample_factor(len(ids))
     G = cluster_scores(J, rows, groups, dk, lay)
     held = np.zeros((n, 0)) if held is None else np.asarray(held, dtype=np.float64).reshape(n, -1)
@@ -211,6 +213,7 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
             break
         C, flat, C_pull, _ = _sandwich_free(A[np.ix_(f, f)], G[:, f], len(ids), _complement(held, f, free),
                                             pull[np.ix_(f, f)])
+        cov_pull[np.ix_(f, f)] = C_pull
         C = C * inflate + C_pull
         if not flat.any():
             cov[np.ix_(f, f)] = C
@@ -227,7 +230,7 @@ def sandwich(s: np.ndarray, J: np.ndarray, rows: list, win: np.ndarray, outer: n
             cov[cols, :] = np.inf
             cov[:, cols] = np.inf
             free[cols] = False
-    return cov
+    return (cov, np.where(np.isfinite(cov), cov_pull, 0.0)) if parts else cov
 
 
 def cluster_scores(J: np.ndarray, rows: list, groups: np.ndarray, dk: np.ndarray, lay: Layout) -> np.ndarray:

@@ -25,8 +25,7 @@ from evpose.core.dataset.dataset import SHARED_KINDS, DatasetError
 
 __all__ = ["CAMPAIGN_FILENAME", "CAMPAIGN_FORMAT", "CAMPAIGN_TEXT", "MAX_CACHED_SCENES", "DaskEvaluator",
            "campaign_scenes", "run_campaign", "check_record", "record_campaign", "campaign_info_task",
-           "campaign_eval_task",
-           "campaign_scene_task"]
+           "campaign_eval_task", "campaign_scene_task"]
 
 CAMPAIGN_FILENAME = "campaign_fit.json"
 CAMPAIGN_FORMAT = "evpose-campaign-fit/1"
@@ -152,8 +151,9 @@ class DaskEvaluator:
 
 def run_campaign(client, dataset, shared: set, params, *, apply: bool = False, progress=None, cancel=None):
     """The campaign fit of ``dataset``'s scenes in its ``[[groups]]`` for the kinds in ``shared`` (the others are
-    left out) on ``client``'s workers, then every scene's share planned and, with ``apply``, stored. Returns ``(CampaignResult, BatchResult)``: the
-    fit and each scene's ``dataset refine`` document (failed scenes with their one-line error)."""
+    left out) on ``client``'s workers, then every scene's share planned and, with ``apply``, stored. Returns
+    ``(CampaignResult, BatchResult)``: the fit and each scene's ``dataset refine`` document (failed scenes with
+    their one-line error)."""
     import uuid
 
     from evpose.core.dataset.batch import BatchResult, failure_text

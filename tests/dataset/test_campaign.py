@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evpose_testing import half_davis_camera
+from evpose_testing import CAMPAIGN_SPEEDS, generate_campaign
 
-SPEEDS = {"slow": 0.1, "mid": 0.5, "fast": 1.0}
+SPEEDS = CAMPAIGN_SPEEDS
 GROUPS = """
 [[groups]]
 name = "day1"
@@ -35,15 +35,8 @@ def _params():
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> Path:
-    from evpose.core.sim.synth import generate
-    from evpose.core.sim.synth_config import SynthConfig
-
     root = tmp_path_factory.mktemp("campaign") / "ds"
-    for name, speed in SPEEDS.items():
-        generate(root / name, SynthConfig(
-            objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=speed, duration_s=2.5, seed=21,
-            pose_error_mm=3.0, pose_error_deg=1.5, pose_error_seed=5, hand_eye_error_mm=2.0, hand_eye_error_deg=0.5,
-            max_px_per_frame=0.5, camera=half_davis_camera()))
+    generate_campaign(root)
     (root / "dataset.toml").write_text(f'format = "evpose-dataset/1"\nscenes = {list(SPEEDS)!r}\n{GROUPS}'
                                        .replace("'", '"'))
     return root

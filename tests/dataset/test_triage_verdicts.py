@@ -6,60 +6,23 @@ are unchanged byte for byte."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from evpose_testing import half_davis_camera
+from evpose_testing import build_triage_dataset
 
 pytest.importorskip("distributed")
-
-
-def _edit(scene: Path, change) -> None:
-    import tomli_w
-
-    manifest = tomllib.loads((scene / "scene.toml").read_text())
-    change(manifest)
-    (scene / "scene.toml").write_text(tomli_w.dumps(manifest))
-
-
-def _moved(T, mm: float, deg: float, axis) -> list:
-    from scipy.spatial.transform import Rotation
-
-    T = np.asarray(T, dtype=np.float64).copy()
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    T[:3, :3] = Rotation.from_rotvec(np.radians(deg) * axis).as_matrix() @ T[:3, :3]
-    T[:3, 3] += mm * 1e-3 * axis
-    return T.tolist()
 
 
 @pytest.fixture(scope="module")
 def triage_dataset(tmp_path_factory) -> Path:
     """Five scenes from one generated recording (3 objects, 2.5 s at 0.5 m/s, half resolution; its labels right)."""
-    from evpose.core.sim.synth import generate
-    from evpose.core.sim.synth_config import SynthConfig
-
     base = tmp_path_factory.mktemp("triage") / "base"
-    generate(base, SynthConfig(objects=("box", "cylinder", "flatbox"), trajectory="B", speed_mps=0.5, duration_s=2.5,
-                               seed=12, max_px_per_frame=0.5, camera=half_davis_camera()))
     root = base.parent / "ds"
-    for name in ("a_right", "b_clock", "c_pose", "d_mounting", "e_broken"):
-        shutil.copytree(base, root / name)
-    _edit(root / "b_clock", lambda m: m["clock"].update(offset_us=20_000))
-
-    def box_off(m):
-        box = next(o for o in m["objects"] if o["name"] == "box")
-        box["T_base_obj"] = _moved(box["T_base_obj"], 5.0, 3.0, [0.3, -0.5, 0.8])
-    _edit(root / "c_pose", box_off)
-    # the recorded poses become the flange's, the camera mounted 2 mm / 0.5 deg off it
-    _edit(root / "d_mounting", lambda m: m["trajectory"].update(frame="tcp", hand_eye=_moved(np.eye(4), 2.0, 0.5,
-                                                                                             [1.0, 0.4, -0.2])))
-    (root / "e_broken" / "events.h5").write_bytes(b"not an hdf5 file")
+    build_triage_dataset(base, root)
     return root
 
 
