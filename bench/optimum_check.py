@@ -2,7 +2,7 @@
 
 Per scene of a family (``--family``, as ``bench/accuracy_validation.py``), ``evpose sync --edges`` as a user runs it,
 then per fitted object whose pose error is beyond 2 sigma (translation of its centre or rotation), the joint
-objective (:func:`evpose.core.align.joint_fit.objectives`: fresh contours and association, the fit's windows) at
+objective (:func:`evpose.core.align.joint_second_look.objectives`: fresh contours and association, the fit's windows) at
 the estimate and with that object alone moved to its true pose, at every kernel width:
 
 * the truth scores **higher at the finest width**: the objective knows better, the fit did not get there -- a
@@ -15,7 +15,7 @@ Printed per object: error and sigma, |error| / sigma, the objective's relative c
 widths when the object is moved to its truth, and the verdict; then the count per verdict.
 
 ``--cost``: instead, the joint fit's run time with and without its second look at the objects
-(:func:`evpose.core.align.joint_fit._second_look`), measured in one run per scene, and the ratio.
+(:func:`evpose.core.align.joint_second_look.second_look`), measured in one run per scene, and the ratio.
 
 Usage: ``python bench/optimum_check.py [--family calibration|validation|tuning] [--scenes NAME ...] [--all]
 [--cost]`` (``--all``: also the objects within 2 sigma).
@@ -55,7 +55,7 @@ def _states(scene, edges, gt):
 
 
 def evaluate(folder: Path, everything: bool = False) -> list[dict]:
-    from evpose.core.align.joint_fit import objectives
+    from evpose.core.align.joint_second_look import objectives
     from evpose.core.align.joint_result import JointParams
     from evpose.core.align.sync_run import SyncOptions, run_sync
     from evpose.core.data.scene import Scene
@@ -93,23 +93,23 @@ def evaluate(folder: Path, everything: bool = False) -> list[dict]:
 
 
 def cost(folder: Path) -> tuple[float, float]:
-    """The joint fit's run time (s, CPU of this process) without and with the second look on ``folder``'s scene,
-    each as ``evpose sync --edges`` runs it (the rate stage, then the joint fit and its mounting check)."""
-    from evpose.core.align import joint_fit
+    """The CPU time (s, this process) of ``evpose sync --edges`` on ``folder``'s scene (the rate stage, then the joint
+    fit and its mounting check) without and with the second look."""
+    from evpose.core.align import joint_second_look as look
     from evpose.core.align.sync_run import SyncOptions, run_sync
     from evpose.core.data.scene import Scene
 
-    level = joint_fit.SECOND_LOOK_FROM_LEVEL
+    level = look.SECOND_LOOK_FROM_LEVEL
     out = []
     try:
         for lv in (10 ** 6, level):                      # past the last width: no second look
-            joint_fit.SECOND_LOOK_FROM_LEVEL = lv
+            look.SECOND_LOOK_FROM_LEVEL = lv
             with Scene.open(folder) as scene:
                 t0 = time.process_time()
                 run_sync(scene, SyncOptions(edges=True))
                 out.append(time.process_time() - t0)
     finally:
-        joint_fit.SECOND_LOOK_FROM_LEVEL = level
+        look.SECOND_LOOK_FROM_LEVEL = level
     return out[0], out[1]
 
 

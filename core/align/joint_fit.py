@@ -13,7 +13,7 @@ with their nearest visible edge sample at the current estimate; the parameter st
 objective with that association fixed and the distances linearised (:func:`evpose.core.align.joint_solve.solve_step`:
 analytic derivatives, :mod:`evpose.core.align.joint_model`), then the events are associated again at the new
 estimate; a width's result is kept only when it raises that width's objective with a fresh association (else the
-width's start is restored). Then a second look (:func:`_second_look`): the objects fitted again from their start
+width's start is restored). Then a second look (:func:`evpose.core.align.joint_second_look.second_look`): the objects fitted again from their start
 poses over the fine widths with the clock as fitted, each kept where its share of the objective at the finest width
 is higher -- the first pass fits the objects while the clock is still wrong and its coarse widths blur an edge with
 a shadow or a neighbour's edge beside it, and can settle in a wrong optimum. Joint optimisation rather than
@@ -50,8 +50,7 @@ from evpose.core.align.clock_refine import offset_window_us
 from evpose.core.data.events import Cancelled
 from evpose.core.data.geometry import inv_T
 
-__all__ = ["MIN_OBJECT_EVENTS", "MIN_OBJECT_WINDOWS", "SKEW_LEVELS", "SKEW_MAX_STD_PPM", "SKEW_SIGMAS", "objectives",
-           "refine_joint"]
+__all__ = ["MIN_OBJECT_EVENTS", "MIN_OBJECT_WINDOWS", "SKEW_LEVELS", "SKEW_MAX_STD_PPM", "SKEW_SIGMAS", "refine_joint"]
 
 #: The fitted skew is kept when its standard error is at most this (ppm) or its change exceeds SKEW_SIGMAS of it.
 SKEW_MAX_STD_PPM = 15.0
@@ -71,11 +70,6 @@ SKEW_LEVELS = 2
 TWIN_SIZE_REL = 0.1
 TWIN_CENTRE_REL = 0.1
 TWIN_DEG = 10.0
-#: The second look (:func:`_second_look`) fits the objects again from their start poses over the kernel widths from
-#: this index on (the third of JOINT_SIGMAS_PX: 0.45 px at half resolution), the clock at the first pass's end.
-SECOND_LOOK_FROM_LEVEL = 2
-#: A second look that moves an object by more than this (mm of its centre, degrees) found another optimum: noted.
-SECOND_LOOK_NOTE_MM, SECOND_LOOK_NOTE_DEG = 1.0, 1.0
 #: Weight of the prior that holds a rotation the silhouettes cannot show (per associated event and rotation unit
 #: squared): ~10^4 times the events' own curvature at the finest width, so the held spin stays within ~10^-4 of a
 #: rotation unit of its start.
@@ -333,83 +327,6 @@ def _level(fit: _Fit, sigma: float, lay: Layout, p: JointParams, result: JointRe
     return beta
 
 
-def _object_values(fit: _Fit, state: JointState, sigma: float, beta: float | None = None):
-    """Each object's share of the objective of ``state`` at width ``sigma`` (fresh contours and association: the
-    kernel over the events nearest to its samples, per valid event of the windows); returns ``(shares, beta)``,
-    ``beta`` default the width's own from this association. The shares sum to :meth:`_Fit.value`."""
-    fit._looked = None
-    n = len(state.T_bo)
-    d = fit.data(state, fit.look(state), sigma)
-    if d is None:
-        return np.full(n, np.nan), beta
-    if beta is None:
-        beta = level_beta(d, sigma, fit.p, float(fit.K[0, 0]))
-    k, _, _ = kernel_derivs(d.s, d.outer, sigma, beta)
-    return np.bincount(d.obj, weights=k, minlength=n)[:n] / d.n_events, beta
-
-
-def _second_look(fit: _Fit, sigmas, lay: Layout, p: JointParams, result: JointResult, total: np.ndarray,
-                 totals: list, T_start, t_start: float, progress, cancel) -> None:
-    """A second look at the objects: fit them again from their start poses over the kernel widths from
-    :data:`SECOND_LOOK_FROM_LEVEL` on, with the clock and hand-eye at the first pass's end, and keep for each object
-    the pose whose share of the objective is higher at the finest width -- when the combination beats the first
-    pass's end there (fresh association each).
-
-    Why: the first pass fits every object while the clock is still wrong, and its coarse widths blur an object's
-    edge with whatever lies near it -- a shadow on the table, a neighbour's or the object's own texture. On the
-    calibration scenes c01 and c08 (bench/optimum_check.py) the poses beyond 2 sigma were mostly such wrong optima:
-    the truth scored higher at the finest width, yet the coarse widths had led away from it (c08's timer 16 deg off;
-    3.5 deg after the second look). Started again once the clock is right, at widths that no longer blur the
-    neighbours in, an object can find the optimum the finest width prefers.
-    The objects are independent given the clock and hand-eye but for occlusion and which edge an event is nearest to,
-    so one pass serves them all and each object is judged by its own share. Nothing the second look finds replaces
-    the first pass unless the fit's own objective rises. ``total`` / ``totals`` (per width) take a kept object's
-    changes from its start, so the standard errors' width-disagreement term is the second look's."""
-    n = len(fit.names)
-    fine = sigmas[SECOND_LOOK_FROM_LEVEL:]
-    free = [bool(lay.free[8 + 6 * i]) and not np.allclose(fit.state.T_bo[i], T_start[i]) for i in range(n)]
-    if not fine or not any(free) or len(totals) < len(sigmas):
-        return
-    if progress is not None:
-        progress(None, "second look at the objects from their start poses")
-    first = fit.state
-    g1, beta = _object_values(fit, first, sigmas[-1])
-    trial = first.copy()
-    trial.T_bo = [T_start[i].copy() if free[i] else T for i, T in enumerate(first.T_bo)]
-    fit.state, fit.contours = trial, None
-    tot, widths = np.zeros_like(total), []
-    for sigma in fine:
-        if _level(fit, sigma, Layout(n, False, False, False, free), p, result, tot, t_start, progress, cancel) is None:
-            break
-        widths.append(tot.copy())
-    second = fit.state
-    fit.state, fit.contours, fit._looked = first, None, None
-    if len(widths) < len(fine):
-        return
-    g2, _ = _object_values(fit, second, sigmas[-1], beta)
-    take = [i for i in range(n) if free[i] and g2[i] > g1[i]]
-    if not take:
-        return
-    combined = first.copy()
-    for i in take:
-        combined.T_bo[i] = second.T_bo[i].copy()
-    g3, _ = _object_values(fit, combined, sigmas[-1], beta)       # its contours stay cached for the covariance
-    if not g3.sum() > g1.sum():
-        return
-    fit.state = combined
-    for i in take:
-        cols = slice(8 + 6 * i, 14 + 6 * i)
-        total[cols] = tot[cols]
-        for k, w in enumerate(widths[-2:]):
-            totals[len(totals) - len(widths[-2:]) + k][cols] = w[cols]
-        c0 = first.T_bo[i][:3, :3] @ fit.setup.edges[i].centre + first.T_bo[i][:3, 3]
-        ang, moved = _pose_change(combined.T_bo[i] @ inv_T(first.T_bo[i]), c0)
-        if moved > SECOND_LOOK_NOTE_MM or ang > SECOND_LOOK_NOTE_DEG:
-            result.notes.append(f"{fit.names[i]}: fitted again from its start pose once the clock was fitted, it found "
-                                f"a better optimum {moved:.1f} mm / {ang:.1f} deg from the first (its share of the "
-                                f"objective at the finest width +{(g2[i] / g1[i] - 1) * 100:.1f} %)")
-
-
 def _covariance(fit: _Fit, sigma: float, beta: float, lay: Layout, p: JointParams, total: np.ndarray):
     """The parameter covariance at the final state (finest width), None without data."""
     contours = fit.look(fit.state, previous=fit.contours)
@@ -495,8 +412,10 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
         totals.append(total.copy())
     if beta is None:
         result.reason = "no events near the objects' edges"
-    else:
-        _second_look(fit, sigmas, lay, params, result, total, totals, T_start, t_start, progress, cancel)
+    elif not params.hand_eye:       # with the hand-eye free the objects' poses share directions with it: see there
+        from evpose.core.align.joint_second_look import second_look
+
+        second_look(fit, sigmas, lay, params, result, total, totals, T_start, t_start, progress, cancel)
     sigma_end = sigmas[max(len(totals) - 1, 0)]                  # the finest width that had events
     cov = _final_covariance(fit, result, params, names, sigma_end, beta, lay, total, totals, clock0, t_start,
                             progress, cancel)
@@ -506,36 +425,6 @@ def refine_joint(scene, *, params: JointParams = JointParams(), clock=None, wind
     if progress is not None:
         progress(1.0, "done" if result.accepted else result.reason)
     return result
-
-
-def objectives(scene, states, *, params: JointParams = JointParams(), clock=None, windows=None) -> np.ndarray:
-    """The joint objective of :func:`refine_joint` at each of ``states`` (:class:`~evpose.core.align.joint_model.
-    JointState`: clock, hand-eye on top of the scene's correction, base-frame object poses of
-    ``scene.object_names``) and each kernel width, coarse to fine: ``(len(states), n_widths)``, NaN where no event
-    lies near the edges. Each state is seen afresh (its own contours and association), on the windows the fit
-    chooses at ``clock`` (default the scene's), with each width's density step ``beta`` from the first state's
-    association (as the fit compares its end with its start). What it is for: telling a wrong optimum from a
-    biased objective -- a pose the fit missed that scores higher at the finest width is the solver's fault
-    (bench/optimum_check.py)."""
-    clock0 = clock or scene.clock
-    names = scene.object_names
-    windows = _choose(scene, params, clock0, names, windows)
-    sigmas = params.sigmas(float(scene.camera.K[0, 0]))
-    out = np.full((len(states), len(sigmas)), np.nan)
-    if not windows or not states:
-        return out
-    fit = _Fit(scene, names, windows, states[0], params)
-    betas = [None] * len(sigmas)
-    for i, state in enumerate(states):
-        contours = fit.look(state)                      # the contours do not depend on the width
-        for j, sigma in enumerate(sigmas):
-            d = fit.data(state, contours, sigma)
-            if d is None:
-                continue
-            if betas[j] is None:
-                betas[j] = level_beta(d, sigma, params, float(fit.K[0, 0]))
-            out[i, j] = fit.value(d, sigma, betas[j])
-    return out
 
 
 def cov_layout(result: JointResult, params: JointParams, names) -> Layout:

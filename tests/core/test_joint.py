@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evpose.core.align import joint_fit
+from evpose.core.align import joint_fit, joint_second_look
 from evpose.core.align.joint_model import EdgeData, he_delta, jacobian
 from evpose.core.align.joint_result import JointParams
 from evpose.core.align.joint_solve import Layout, kernel_curvature, kernel_derivs
@@ -265,9 +265,9 @@ def test_the_second_look_takes_the_start_basin_only_where_it_fits_better(wrong):
         sigmas = p.sigmas(float(scene.camera.K[0, 0]))
         result = joint_fit.JointResult(params=p, offset_us=clock.offset_us, skew_ppm=0.0)
         total, totals = np.zeros(lay.n), [np.zeros(lay.n) for _ in sigmas]
-        before = joint_fit._object_values(fit, state, sigmas[-1])[0]
-        joint_fit._second_look(fit, sigmas, lay, p, result, total, totals, start, 0.0, None, None)
-        after = joint_fit._object_values(fit, fit.state, sigmas[-1])[0]
+        before = joint_second_look.object_values(fit, state, sigmas[-1])[0].sum(axis=0)
+        joint_second_look.second_look(fit, sigmas, lay, p, result, total, totals, start, 0.0, None, None)
+        after = joint_second_look.object_values(fit, fit.state, sigmas[-1])[0].sum(axis=0)
         err = _errors(scene, gt, {n: fit.state.T_bo[k] for k, n in enumerate(names)})
     print(f"second look: errors (mm, deg) {err.round(2).tolist()}, shares {before.round(4)} -> {after.round(4)}, "
           f"notes {result.notes}")
@@ -279,8 +279,8 @@ def test_the_second_look_takes_the_start_basin_only_where_it_fits_better(wrong):
 
 
 def test_objectives_score_the_truth_above_a_moved_object_and_shares_sum_to_the_objective(wrong):
-    """bench/optimum_check.py's measure: :func:`joint_fit.objectives` gives every state's objective at every width,
-    the truth above the same scene with the box 6 mm off at each of the finer widths (the coarsest may blur it);
+    """bench/optimum_check.py's measure: :func:`joint_second_look.objectives` gives every state's objective at
+    every width, the truth above the same scene with the box 6 mm off at each of the finer widths (the coarsest may blur it);
     each object's share (the second look's measure) sums to the objective the fit uses."""
     gt = load_ground_truth(wrong)
     with Scene.open(wrong) as scene:
@@ -292,16 +292,16 @@ def test_objectives_score_the_truth_above_a_moved_object_and_shares_sum_to_the_o
         p = JointParams(n_windows=8, clock=False)
         states = [joint_fit.JointState(float(clock.offset_us), 0.0, int(clock.t_ref_us), np.eye(4), T)
                   for T in (true, moved)]
-        F = joint_fit.objectives(scene, states, params=p, clock=clock)
+        F = joint_second_look.objectives(scene, states, params=p, clock=clock)
         fit = joint_fit._Fit(scene, names, joint_fit._choose(scene, p, clock, names, None), states[0], p)
         sigma = p.sigmas(float(scene.camera.K[0, 0]))[-1]
-        shares, beta = joint_fit._object_values(fit, states[0], sigma)
+        shares, beta = joint_second_look.object_values(fit, states[0], sigma)
         d = fit.data(states[0], fit.look(states[0]), sigma)
         value = fit.value(d, sigma, beta)
-    print(f"objectives: truth {F[0].round(4)}, box moved {F[1].round(4)}; shares {shares.round(4)}")
+    print(f"objectives: truth {F[0].round(4)}, box moved {F[1].round(4)}; shares {shares.sum(axis=0).round(4)}")
     assert F.shape == (2, len(p.sigmas(float(scene.camera.K[0, 0])))) and np.all(np.isfinite(F))
     assert np.all(F[0, 2:] > F[1, 2:])
-    assert shares.sum() == pytest.approx(value, rel=1e-9) and np.all(shares > 0)
+    assert shares.sum() == pytest.approx(value, rel=1e-9) and np.all(shares.sum(axis=0) > 0)
     assert F[0, -1] == pytest.approx(value, rel=1e-9)               # the same windows, association and kernel
 
 
