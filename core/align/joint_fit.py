@@ -13,9 +13,10 @@ with their nearest visible edge sample at the current estimate; the parameter st
 objective with that association fixed and the distances linearised (:func:`evpose.core.align.joint_solve.solve_step`:
 analytic derivatives, :mod:`evpose.core.align.joint_model`), then the events are associated again at the new
 estimate; a width's result is kept only when it raises that width's objective with a fresh association (else the
-width's start is restored). Then a second look (:func:`evpose.core.align.joint_second_look.second_look`): the objects fitted again from their start
-poses over the fine widths with the clock as fitted, each kept where its share of the objective at the finest width
-is higher -- the first pass fits the objects while the clock is still wrong and its coarse widths blur an edge with
+width's start is restored). Then, in the clock-and-poses fit, a second look
+(:func:`evpose.core.align.joint_second_look.second_look`): the objects fitted again from their start poses over the
+fine widths with the clock as fitted, each kept where its share of the objective at the finest width is clearly
+higher -- the first pass fits the objects while the clock is still wrong and its coarse widths blur an edge with
 a shadow or a neighbour's edge beside it, and can settle in a wrong optimum. Joint optimisation rather than
 alternation: alternating the clock and the poses converges slowly along the directions where they trade off (an
 offset on a straight move looks like a shift along the motion) and its per-stage standard errors ignore that

@@ -51,7 +51,7 @@ def object_values(fit: _Fit, state: JointState, sigma: float, beta: float | None
 
 def gains(fit: _Fit, before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per object, the mean over the camera's moves (the fit's ``clusters``, else each window) of the change of its
-    share from ``before`` to ``after`` (per-window shares of :func:`_object_values`) and that mean's standard error
+    share from ``before`` to ``after`` (per-window shares of :func:`object_values`) and that mean's standard error
     (inf with fewer than two moves)."""
     groups = fit.clusters if fit.clusters is not None else np.arange(len(before))
     _, g = np.unique(groups, return_inverse=True)
@@ -97,6 +97,7 @@ def second_look(fit: _Fit, sigmas, lay: Layout, p: JointParams, result: JointRes
         progress(None, "second look at the objects from their start poses")
     first = fit.state
     g1, beta = object_values(fit, first, sigmas[-1])
+    first_look = fit._looked             # its fresh contours: the covariance's when the first pass stays
     trial = first.copy()
     trial.T_bo = [T_start[i].copy() if free[i] else T for i, T in enumerate(first.T_bo)]
     fit.state, fit.contours = trial, None
@@ -106,19 +107,20 @@ def second_look(fit: _Fit, sigmas, lay: Layout, p: JointParams, result: JointRes
             break
         widths.append(tot.copy())
     second = fit.state
-    fit.state, fit.contours, fit._looked = first, None, None
-    if len(widths) < len(fine):
-        return
-    g2, _ = object_values(fit, second, sigmas[-1], beta)
-    gain, se = gains(fit, g1, g2)
-    take = [i for i in range(n) if free[i] and gain[i] > SECOND_LOOK_SIGMAS * se[i]]
+    fit.state, fit.contours = first, None
+    take = []
+    if len(widths) == len(fine):
+        g2, _ = object_values(fit, second, sigmas[-1], beta)
+        gain, se = gains(fit, g1, g2)
+        take = [i for i in range(n) if free[i] and gain[i] > SECOND_LOOK_SIGMAS * se[i]]
+    if take:
+        combined = first.copy()
+        for i in take:
+            combined.T_bo[i] = second.T_bo[i].copy()
+        g3, _ = object_values(fit, combined, sigmas[-1], beta)   # its contours stay cached for the covariance
+        take = take if g3.sum() > g1.sum() else []
     if not take:
-        return
-    combined = first.copy()
-    for i in take:
-        combined.T_bo[i] = second.T_bo[i].copy()
-    g3, _ = object_values(fit, combined, sigmas[-1], beta)       # its contours stay cached for the covariance
-    if not g3.sum() > g1.sum():
+        fit._looked = first_look
         return
     fit.state = combined
     for i in take:
@@ -138,11 +140,11 @@ def second_look(fit: _Fit, sigmas, lay: Layout, p: JointParams, result: JointRes
 def objectives(scene, states, *, params: JointParams = JointParams(), clock=None, windows=None) -> np.ndarray:
     """The joint objective of :func:`~evpose.core.align.joint_fit.refine_joint` at each of ``states``
     (:class:`~evpose.core.align.joint_model.JointState`: clock, hand-eye on top of the scene's correction, base-frame
-    object poses of ``scene.object_names``) and each kernel width, coarse to fine: ``(len(states), n_widths)``, NaN where no event
-    lies near the edges. Each state is seen afresh (its own contours and association), on the windows the fit
-    chooses at ``clock`` (default the scene's), with each width's density step ``beta`` from the first state's
-    association (as the fit compares its end with its start). What it is for: telling a wrong optimum from a
-    biased objective -- a pose the fit missed that scores higher at the finest width is the solver's fault
+    object poses of ``scene.object_names``) and each kernel width, coarse to fine: ``(len(states), n_widths)``, NaN
+    where no event lies near the edges. Each state is seen afresh (its own contours and association), on the
+    windows the fit chooses at ``clock`` (default the scene's), with each width's density step ``beta`` from the
+    first state's association (as the fit compares its end with its start). What it is for: telling a wrong optimum
+    from a biased objective -- a pose the fit missed that scores higher at the finest width is the solver's fault
     (bench/optimum_check.py)."""
     clock0 = clock or scene.clock
     names = scene.object_names

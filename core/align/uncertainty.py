@@ -28,7 +28,7 @@ __all__ = ["HAND_EYE_FLOOR_DEG", "HAND_EYE_FLOOR_MM", "JOINT_OFFSET_FLOOR_US", "
 # --floors``, 09:05-09:22): each joint floor is the value printed there. That run zeroed the rate's floor too, which
 # narrowed the edge stage's search range to 5 ms: c03 and c08 were refused and the joint floors came from six scenes.
 # Set again on 2026-11-29 (11:03-11:12) from all eight with the rate's floor kept while measuring, after the joint
-# fit gained its second look at the objects (joint_fit._second_look).
+# fit gained its second look at the objects (joint_second_look.second_look).
 
 #: Event-rate stage: offset (µs). Its data-only sigma counts the Poisson noise of the rate (30-300 µs); its error
 #: comes from how the events lag the motion that the rate proxy assumes: -0.7 to -9.5 ms on the calibration
@@ -47,6 +47,7 @@ POSE_FLOOR_DEG = 0.107
 #: calibration scenes with a mounting error (|error| / sigma 0.4-0.6); the pose floors, as the least model error.
 HAND_EYE_FLOOR_MM = POSE_FLOOR_MM
 HAND_EYE_FLOOR_DEG = POSE_FLOOR_DEG
+
 
 def with_floor(std: float | None, floor: float) -> float | None:
     """``sqrt(std^2 + floor^2)``; None stays None (no estimate) and infinity stays infinity (not pinned)."""
